@@ -1,0 +1,404 @@
+"""The ``swarmraft`` command. Every subcommand prints where its outputs went; bad input is a
+one-line error naming the problem (exit status 2)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+# Wide tables even when the output is a pipe or a log file (rich would assume 80 columns).
+_WIDTH = None if sys.stdout.isatty() else 130
+console = Console(highlight=False, width=_WIDTH)
+err_console = Console(stderr=True, highlight=False, width=_WIDTH)
+
+
+class _Group(click.Group):
+    """Turns expected errors into one line on stderr instead of a traceback."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except (ValueError, RuntimeError, FileNotFoundError, KeyError) as exc:
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            err_console.print(f"[bold red]error:[/] {msg}", soft_wrap=True)
+            sys.exit(2)
+
+
+def _int_list(text: str | None, name: str) -> tuple[int, ...] | None:
+    """'3,5,7' or '3-17' or '3-17:2' -> ints."""
+    if text is None:
+        return None
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            if "-" in part:
+                rng, _, step = part.partition(":")
+                lo, hi = (int(v) for v in rng.split("-"))
+                out += list(range(lo, hi + 1, int(step) if step else 1))
+            elif part:
+                out.append(int(part))
+    except ValueError:
+        raise click.BadParameter(
+            f"expected integers like 3,5,7 or 3-17:2, got {text!r}", param_hint=name
+        ) from None
+    if not out:
+        raise click.BadParameter("no values given", param_hint=name)
+    return tuple(out)
+
+
+def _params(items: tuple[str, ...]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--param")
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def progress_bar(label: str) -> tuple[Progress, Callable[[int, int], Callable[[int], None]]]:
+    prog = Progress(
+        TextColumn(f"[bold]{label}[/]"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("trials"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=False,
+    )
+
+    def start(total: int, cells: int) -> Callable[[int], None]:
+        task = prog.add_task(label, total=total)
+        return lambda k: prog.advance(task, k)
+
+    return prog, start
+
+
+def _summary_table(cells: dict, title: str) -> Table:
+    t = Table(title=title, title_justify="left")
+    for col in (
+        "n",
+        "f",
+        "trials",
+        "baseline m",
+        "recovered mean m",
+        "+/- sem",
+        "median m",
+        "p99 m",
+        ">1 m",
+        "honest m",
+        "detect",
+        "false pos",
+    ):
+        t.add_column(col, justify="right")
+    for i in range(len(cells["n"])):
+        t.add_row(
+            str(cells["n"][i]),
+            str(cells["f"][i]),
+            str(cells["trials"][i]),
+            f"{cells['baseline_mean'][i]:.2f}",
+            f"{cells['recovered_mean'][i]:.3g}",
+            f"{cells['recovered_sem'][i]:.2g}",
+            f"{cells['recovered_median'][i]:.2g}",
+            f"{cells['recovered_p99'][i]:.3g}",
+            f"{cells['frac_over_1m'][i]:.1%}",
+            f"{cells['honest_mean'][i]:.3g}",
+            f"{cells['detection_rate'][i]:.1%}",
+            f"{cells['false_positive_rate'][i]:.1%}",
+        )
+    return t
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="swarmraft")
+def main() -> None:
+    """SwarmRaft: verify drone-swarm positions against inter-drone ranges.
+
+    Run `swarmraft COMMAND --help` for each command's options.
+    """
+
+
+@main.command()
+@click.option(
+    "--preset",
+    type=click.Choice(["reference", "realistic"]),
+    default="reference",
+    show_default=True,
+    help="reference: the paper's code; realistic: FACTS.md noise.",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML file with sweep settings (flags given here override it).",
+)
+@click.option("--n", "n_text", help="swarm sizes: 3,5,7 or 3-17 or 3-17:2 [default 3-17:2]")
+@click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
+@click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1 (as the paper).")
+@click.option("--trials", type=int, help="trials per cell [default 10000]")
+@click.option("--seed", type=int, help="master seed [default 2025]")
+@click.option("--detector", help="registered detector name [default paper]")
+@click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="detector parameter, repeatable (e.g. --param tau=0.3).",
+)
+@click.option(
+    "--attack",
+    type=click.Choice(
+        ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
+    ),
+    help="attack [default jump]",
+)
+@click.option("--workers", type=int, help="local worker processes [default: all cores]")
+@click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local' for a LocalCluster.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="results folder [default results/<preset>]; an existing one is resumed.",
+)
+def sweep(
+    preset,
+    config_file,
+    n_text,
+    f_text,
+    diagonal,
+    trials,
+    seed,
+    detector,
+    params,
+    attack,
+    workers,
+    scheduler,
+    out,
+) -> None:
+    """Monte Carlo sweep over swarm size n and attacker count f.
+
+    Writes cells.csv (one row per (n, f)), trials.csv (one row per trial) and run.json
+    (config, seed, version). Cells already in --out are not recomputed.
+    """
+    from swarmraft.experiments import build_config, run_sweep
+
+    settings: dict[str, Any] = {}
+    if config_file is not None:
+        try:
+            settings = tomllib.loads(config_file.read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"--config: no file {config_file}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"--config {config_file}: not valid TOML ({exc})") from None
+        preset = settings.pop("preset", preset)
+    overrides = {
+        "n": _int_list(n_text, "--n"),
+        "f": _int_list(f_text, "--f"),
+        "diagonal": diagonal or None,
+        "trials": trials,
+        "seed": seed,
+        "detector": detector,
+        "detector_params": _params(params) or None,
+        "attack": {"name": attack} if attack else None,
+    }
+    config = build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})
+    out = out or Path("results") / config.preset
+    cells = config.cells()
+    console.print(
+        f"sweep: preset {config.preset}, detector {config.detector}, attack "
+        f"{config.attack.name}, {len(cells)} cells x {config.trials} trials, "
+        f"seed {config.seed} -> {out}"
+    )
+    prog, start = progress_bar("sweep")
+    with prog:
+        result = run_sweep(config, out, workers=workers, scheduler=scheduler, progress=start)
+    if result.reused:
+        console.print(f"reused {len(result.reused)} finished cells from {out}")
+    console.print(_summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
+    console.print(f"done in {result.seconds:.1f} s on {result.executor}")
+    for p in result.paths:
+        console.print(f"  wrote {p}")
+
+
+def _load_results(results: Path) -> tuple[dict, dict, dict]:
+    from swarmraft.experiments.tables import read_table
+
+    if not (results / "cells.csv").exists():
+        raise FileNotFoundError(f"{results}: no cells.csv here; run `swarmraft sweep --out {results}` first")
+    run = json.loads((results / "run.json").read_text())
+    trials = read_table(results / "trials.csv") if (results / "trials.csv").exists() else {}
+    return read_table(results / "cells.csv"), trials, run
+
+
+@main.command()
+@click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "all"]))
+@click.argument("results", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), help="image file (default RESULTS/figures/KIND.png)")
+@click.option(
+    "--view",
+    type=click.Choice(["projections", "3d"]),
+    default="projections",
+    show_default=True,
+    help="recovery picture: XY and XZ projections, or 3-D.",
+)
+def figure(kind, results, out, view) -> None:
+    """Draw a figure from a results folder written by `swarmraft sweep`.
+
+    scaling: mean error against n (log axis); distribution: box plots of per-trial errors;
+    recovery: the paper's picture for (n, f) = (6, 2), (11, 5), (16, 7) drawn with the
+    folder's config and seed; all: the three.
+    """
+    for path in draw_figures(kind, results, out, view):
+        console.print(f"wrote {path}")
+
+
+def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = "projections") -> list[Path]:
+    from swarmraft import viz
+    from swarmraft.experiments import SweepConfig
+    from swarmraft.experiments.cases import recovery_cases
+
+    cells, trials, run = _load_results(Path(results))
+    kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
+    paths = []
+    for k in kinds:
+        target = out if (out and kind != "all") else Path(results) / "figures" / f"{k}.png"
+        if k == "scaling":
+            paths.append(viz.scaling(cells, target))
+        elif k == "distribution":
+            title = f"preset {cells['preset'][0]}, detector {cells['detector'][0]}"
+            paths.append(viz.distribution(trials, target, title))
+        else:
+            config = SweepConfig(**run["config"])
+            paths.append(viz.recovery(recovery_cases(config), target, view))
+    return paths
+
+
+@main.command()
+@click.argument("results", type=click.Path(file_okay=False, path_type=Path))
+def check(results) -> None:
+    """Compare a reference sweep with the paper's published means (FACTS.md).
+
+    Passes when every recovered mean is within 3 standard errors of the published one and
+    every baseline within 0.3 m; exits 1 otherwise.
+    """
+    from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, compare_published
+
+    cells, _, run = _load_results(Path(results))
+    if run["config"]["preset"] != "reference":
+        raise ValueError(
+            f"{results}: the published numbers are for --preset reference, "
+            f"this folder is {run['config']['preset']!r}"
+        )
+    rows = compare_published(cells)
+    if not rows:
+        raise ValueError(f"{results}: no cell with n = 2f+1 for f = 1..8 to compare")
+    t = Table(title=f"{results} against the published means", title_justify="left")
+    for col in (
+        "n (f)",
+        "trials",
+        "recovered m",
+        "sem",
+        "published m",
+        "z",
+        "baseline m",
+        "published",
+        "ok",
+    ):
+        t.add_column(col, justify="right")
+    for r in rows:
+        t.add_row(
+            f"{r['n']} ({r['f']})",
+            str(r["trials"]),
+            f"{r['recovered']:.3f}",
+            f"{r['sem']:.3f}",
+            f"{r['published']:.3f}",
+            f"{r['z']:+.2f}",
+            f"{r['baseline']:.2f}",
+            f"{r['published_baseline']:.1f}",
+            "yes" if r["ok"] else "[red]NO[/]",
+        )
+    console.print(t)
+    bad = [r for r in rows if not r["ok"]]
+    console.print(
+        f"criteria: |z| <= {MAX_Z}, baseline within {MAX_BASELINE_GAP} m: "
+        + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
+    )
+    sys.exit(1 if bad else 0)
+
+
+@main.command()
+@click.option(
+    "--preset",
+    type=click.Choice(["reference", "realistic"]),
+    default="realistic",
+    show_default=True,
+)
+@click.option("--n", "n_text", default="17", show_default=True, help="swarm sizes")
+@click.option("--trials", type=int, default=2000, show_default=True)
+@click.option("--seed", type=int, default=2025, show_default=True)
+def calibrate(preset, n_text, trials, seed) -> None:
+    """Calibrate tau and epsilon (mu_e + 3 sigma_e of honest residuals, paper III.E)."""
+    from swarmraft.experiments import build_config
+    from swarmraft.experiments.calibration import calibrate_cell
+
+    config = build_config(preset, seed=seed, calibration_trials=trials)
+    t = Table(title=f"calibration, preset {preset}, {trials} honest snapshots", title_justify="left")
+    for col in (
+        "n",
+        "tau m",
+        "pair mu",
+        "pair sigma",
+        "epsilon m",
+        "recovery mu",
+        "recovery sigma",
+    ):
+        t.add_column(col, justify="right")
+    for n in _int_list(n_text, "--n") or ():
+        c = calibrate_cell(config, n)
+        t.add_row(
+            str(n),
+            f"{c.tau:.3f}",
+            f"{c.pair_mean:.3f}",
+            f"{c.pair_std:.3f}",
+            f"{c.epsilon:.3f}",
+            f"{c.recovery_mean:.3f}",
+            f"{c.recovery_std:.3f}",
+        )
+    console.print(t)
+
+
+@main.command()
+def detectors() -> None:
+    """List the registered detectors and their parameters."""
+    from swarmraft.estimation import detector_names, get_detector
+
+    for name in detector_names():
+        det = get_detector(name)
+        console.print(f"[bold]{name}[/]: {det.summary}")
+        for field, info in det.params.model_fields.items():
+            console.print(f"    {field} = {info.default!r}  {info.description or ''}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,28 @@
+"""The leader's verification as pure functions on arrays: detectors, multilateration,
+threshold calibration. Nothing here knows about Raft or networks."""
+
+from swarmraft.estimation import paper as _paper  # noqa: F401  (registers "paper")
+from swarmraft.estimation.paper import PaperParams
+from swarmraft.estimation.registry import (
+    detector_names,
+    detector_params,
+    get_detector,
+    register,
+    verify,
+    verify_batch,
+)
+from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
+
+__all__ = [
+    "PaperParams",
+    "Snapshot",
+    "SnapshotBatch",
+    "Verdict",
+    "VerdictBatch",
+    "detector_names",
+    "detector_params",
+    "get_detector",
+    "register",
+    "verify",
+    "verify_batch",
+]

@@ -1,0 +1,85 @@
+"""Detectors by name: ``verify(snapshot, detector="paper", **params)`` for one snapshot and
+``verify_batch(batch, detector, **params)`` for many; sweeps, missions and the live protocol
+select a detector the same way.
+
+A detector is a function ``(SnapshotBatch, params) -> VerdictBatch`` with a pydantic model of
+its parameters (unknown or out-of-range parameters are a one-line ``ValueError``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
+
+DetectorFn = Callable[[SnapshotBatch, Any], VerdictBatch]
+
+
+@dataclass(frozen=True)
+class Detector:
+    name: str
+    run: DetectorFn
+    params: type[BaseModel]
+    summary: str
+
+
+_REGISTRY: dict[str, Detector] = {}
+
+
+def register(name: str, params: type[BaseModel], summary: str) -> Callable[[DetectorFn], DetectorFn]:
+    """Decorator: register a batch detector under ``name``."""
+
+    def wrap(fn: DetectorFn) -> DetectorFn:
+        if name in _REGISTRY:
+            raise ValueError(f"detector {name!r} is already registered")
+        _REGISTRY[name] = Detector(name=name, run=fn, params=params, summary=summary)
+        return fn
+
+    return wrap
+
+
+def detector_names() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def get_detector(name: str) -> Detector:
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"detector: unknown name {name!r}; known: {', '.join(detector_names())}") from None
+
+
+def one_line(exc: ValidationError, prefix: str) -> str:
+    """A pydantic error as one line naming the field: 'prefix.field: message'."""
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"])
+        where = f"{prefix}.{loc}" if prefix and loc else (prefix or loc)
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown parameter"
+        parts.append(f"{where}: {msg}")
+    return "; ".join(parts)
+
+
+def detector_params(name: str, **params: Any) -> BaseModel:
+    """Validate a detector's parameters; a bad one is a one-line ValueError naming it."""
+    det = get_detector(name)
+    try:
+        return det.params(**params)
+    except ValidationError as exc:
+        raise ValueError(one_line(exc, name)) from None
+
+
+def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
+    p = detector_params(detector, **params)
+    return get_detector(detector).run(batch, p)
+
+
+def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:
+    """Verify one snapshot with a registered detector; returns its `Verdict`."""
+    return verify_batch(SnapshotBatch.of(snapshot), detector, **params).item(0)

@@ -1,0 +1,204 @@
+"""Typed, validated sweep configuration and the two presets of FACTS.md.
+
+Bad input is a one-line ``ConfigError`` naming the field (``gnss.sigma_h: ...``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from swarmraft.estimation.registry import detector_params, one_line
+from swarmraft.world import (
+    AreaSpoof,
+    Attack,
+    ExactRanging,
+    GNSSModel,
+    Jump,
+    RangeTamper,
+    RigidCollusion,
+    RSSIRanging,
+    UWBRanging,
+)
+
+PRESETS = ("reference", "realistic")
+ATTACKS = (
+    "jump",
+    "range-tamper",
+    "range-bias",
+    "collusion-1",
+    "collusion-2",
+    "collusion-3",
+    "area",
+)
+
+
+class ConfigError(ValueError):
+    """A configuration problem, as one line naming the field."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class GNSSConfig(_Strict):
+    """Honest GNSS error per axis, m (FACTS.md realistic: 1.5 m horizontal, 3 m vertical)."""
+
+    sigma_h: float = Field(1.5, ge=0)
+    sigma_v: float = Field(3.0, ge=0)
+    common_h: float = Field(0.0, ge=0, description="component common to all drones")
+    common_v: float = Field(0.0, ge=0)
+
+    def model(self) -> GNSSModel:
+        return GNSSModel(self.sigma_h, self.sigma_v, self.common_h, self.common_v)
+
+
+class RangingConfig(_Strict):
+    """Ranging: ``exact`` (reference code), ``uwb`` (FACTS.md: 0.10 m) or ``rssi``."""
+
+    kind: Literal["exact", "uwb", "rssi"] = "uwb"
+    sigma: float = Field(0.10, ge=0, description="UWB sigma, m")
+    max_range: float | None = Field(None, gt=0, description="no range beyond, m")
+    nlos_prob: float = Field(0.0, ge=0, le=1)
+    nlos_bias: tuple[float, float] = (0.3, 1.0)
+    symmetric: bool = False
+    shadowing_db: float = Field(6.0, ge=0, description="RSSI shadowing, dB")
+    exponent: float = Field(2.5, gt=0, description="RSSI path-loss exponent")
+
+    def model(self) -> ExactRanging | UWBRanging | RSSIRanging:
+        if self.kind == "exact":
+            return ExactRanging(self.max_range)
+        if self.kind == "uwb":
+            return UWBRanging(self.sigma, self.max_range, self.nlos_prob, self.nlos_bias, self.symmetric)
+        return RSSIRanging(self.shadowing_db, self.exponent, self.max_range, self.symmetric)
+
+    @property
+    def sigma_for_snapshot(self) -> float | None:
+        return {"exact": 0.0, "uwb": self.sigma}.get(self.kind)
+
+
+class AttackConfig(_Strict):
+    """Which attack and its parameters. ``jump``: independent jumps (``box`` half width or
+    ``shell`` low-high magnitude); ``range-tamper``: jumps plus ranges consistent with the
+    fake reports; ``range-bias``: jumps plus a bias on the attackers' ranges;
+    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point."""
+
+    name: Literal[ATTACKS] = "jump"  # type: ignore[valid-type]
+    jump: Literal["box", "shell"] = "box"
+    half_width: float = Field(30.0, ge=0)
+    low: float = Field(10.0, ge=0)
+    high: float = Field(100.0, ge=0)
+    bias: float = 5.0
+    angle_deg: tuple[float, float] = (20.0, 90.0)
+
+    @model_validator(mode="after")
+    def _order(self) -> AttackConfig:
+        if self.high < self.low:
+            raise ValueError("high must be >= low")
+        return self
+
+    def model(self) -> Attack:
+        jump = Jump(self.jump, self.half_width, self.low, self.high)
+        if self.name == "jump":
+            return Attack(jump)
+        if self.name == "range-tamper":
+            return Attack(jump, RangeTamper("consistent"))
+        if self.name == "range-bias":
+            return Attack(jump, RangeTamper("bias", self.bias))
+        if self.name == "area":
+            return Attack(AreaSpoof(self.low, self.high))
+        return Attack(RigidCollusion(int(self.name[-1]), self.angle_deg))  # type: ignore[arg-type]
+
+    @property
+    def min_honest(self) -> int:
+        return int(self.name[-1]) if self.name.startswith("collusion") else 0
+
+
+class SweepConfig(_Strict):
+    """A Monte Carlo sweep over swarm size n and attacker count f."""
+
+    preset: Literal[PRESETS] = "reference"  # type: ignore[valid-type]
+    n: tuple[int, ...] = Field((3, 5, 7, 9, 11, 13, 15, 17), min_length=1)
+    f: tuple[int, ...] | None = Field(None, description="attacker counts; default every f")
+    diagonal: bool = Field(False, description="only n = 2f+1")
+    trials: int = Field(10_000, ge=1)
+    seed: int = Field(2025, ge=0)
+    detector: str = "paper"
+    detector_params: dict[str, Any] = Field(default_factory=dict)
+    attack: AttackConfig = Field(default_factory=AttackConfig)
+    gnss: GNSSConfig | None = Field(None, description="None: honest reports are exact")
+    ranging: RangingConfig = Field(default_factory=lambda: RangingConfig(kind="exact"))
+    area_size: float = Field(100.0, gt=0, description="cube side, m (paper: 100 m)")
+    calibrate: bool = Field(False, description="set tau/epsilon by calibration (III.E)")
+    calibration_trials: int = Field(2000, ge=10)
+    chunk_size: int = Field(1000, ge=1, description="trials per task (fixes the seeds)")
+
+    @model_validator(mode="after")
+    def _check(self) -> SweepConfig:
+        if min(self.n) < 1:
+            raise ValueError("n: every swarm size must be >= 1")
+        if self.f is not None and min(self.f) < 1:
+            raise ValueError("f: every attacker count must be >= 1")
+        if self.f is not None and self.diagonal:
+            raise ValueError("f: give either f or diagonal, not both")
+        if not self.cells():
+            raise ValueError("n/f: no cell with 1 <= f <= (n-1)/2 in this grid")
+        try:
+            detector_params(self.detector, **self.detector_params)
+        except ValueError as exc:
+            raise ValueError(f"detector_params: {exc}") from None
+        return self
+
+    def cells(self) -> list[tuple[int, int]]:
+        """(n, f) pairs: every f <= (n-1)/2 (and in ``f`` if given), or only n = 2f+1."""
+        out = []
+        for n in sorted(set(self.n)):
+            fmax = (n - 1) // 2
+            if fmax - self.attack.min_honest < 0:
+                continue
+            fs = range(1, fmax + 1)
+            if self.diagonal:
+                fs = [fmax] if n % 2 == 1 and fmax >= 1 else []
+            elif self.f is not None:
+                fs = [f for f in fs if f in set(self.f)]
+            out += [(n, f) for f in fs if n - f >= self.attack.min_honest]
+        return out
+
+
+def preset_defaults(preset: str) -> dict[str, Any]:
+    """The preset's settings (FACTS.md). ``reference``: the paper's code; ``realistic``: GNSS
+    1.5/3 m, UWB 0.10 m, jumps 10-100 m, thresholds calibrated from honest runs."""
+    if preset == "reference":
+        return {
+            "preset": "reference",
+            "gnss": None,
+            "ranging": {"kind": "exact"},
+            "attack": {"jump": "box", "half_width": 30.0},
+            "calibrate": False,
+        }
+    if preset == "realistic":
+        return {
+            "preset": "realistic",
+            "gnss": {"sigma_h": 1.5, "sigma_v": 3.0},
+            "ranging": {"kind": "uwb", "sigma": 0.10},
+            "attack": {"jump": "shell", "low": 10.0, "high": 100.0},
+            "calibrate": True,
+        }
+    raise ConfigError(f"preset: unknown {preset!r}; known: {', '.join(PRESETS)}")
+
+
+def build_config(preset: str = "reference", **overrides: Any) -> SweepConfig:
+    """Preset defaults with overrides merged in (nested dicts merge one level)."""
+    data = preset_defaults(preset)
+    for key, val in overrides.items():
+        if val is None:
+            continue
+        if isinstance(val, dict) and isinstance(data.get(key), dict):
+            data[key] = {**data[key], **val}
+        else:
+            data[key] = val
+    try:
+        return SweepConfig(**data)
+    except ValidationError as exc:
+        raise ConfigError(one_line(exc, "")) from None

@@ -1,0 +1,51 @@
+"""The paper's published results (FACTS.md: the authors' saved results for n = 2f+1,
+10,000 trials each) and a comparison of a sweep against them."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+#: n -> (f, recovered mean m, baseline mean m), FACTS.md "Published recovered means".
+PUBLISHED: dict[int, tuple[int, float, float]] = {
+    3: (1, 19.00, 28.7),
+    5: (2, 5.50, 28.9),
+    7: (3, 2.29, 28.8),
+    9: (4, 1.23, 28.8),
+    11: (5, 0.85, 28.9),
+    13: (6, 0.52, 28.8),
+    15: (7, 0.41, 28.8),
+    17: (8, 0.287, 28.8),
+}
+MAX_Z = 3.0  # recovered mean within 3 standard errors
+MAX_BASELINE_GAP = 0.3  # baseline mean within 0.3 m
+
+
+def compare_published(cells: Mapping[str, np.ndarray]) -> list[dict[str, object]]:
+    """One row per published cell present in ``cells``: our mean, its standard error, the
+    published mean, z = (ours - published) / our SEM, and whether both criteria hold."""
+    rows = []
+    for i, n in enumerate(np.asarray(cells["n"]).tolist()):
+        f = int(cells["f"][i])
+        if n not in PUBLISHED or PUBLISHED[n][0] != f:
+            continue
+        _, pub_rec, pub_base = PUBLISHED[n]
+        rec, se = float(cells["recovered_mean"][i]), float(cells["recovered_sem"][i])
+        base = float(cells["baseline_mean"][i])
+        z = (rec - pub_rec) / se if se > 0 else float("inf")
+        rows.append(
+            {
+                "n": n,
+                "f": f,
+                "trials": int(cells["trials"][i]),
+                "recovered": rec,
+                "sem": se,
+                "published": pub_rec,
+                "z": z,
+                "baseline": base,
+                "published_baseline": pub_base,
+                "ok": abs(z) <= MAX_Z and abs(base - pub_base) <= MAX_BASELINE_GAP,
+            }
+        )
+    return rows

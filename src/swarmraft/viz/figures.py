@@ -1,0 +1,191 @@
+"""Figures from results tables (matplotlib, written to files; no screen needed)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+TRUE_STYLE = {"c": "green", "marker": "x", "s": 60, "label": "true position"}
+REPORT_STYLE = {"c": "red", "marker": "^", "s": 50, "label": "report"}
+RECOVERED_STYLE = {
+    "c": "gold",
+    "marker": "*",
+    "s": 140,
+    "edgecolors": "darkgoldenrod",
+    "linewidths": 0.6,
+    "label": "verified (SwarmRaft)",
+}
+
+
+def _save(fig: plt.Figure, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _title(cells: Mapping[str, np.ndarray]) -> str:
+    return f"preset {cells['preset'][0]}, detector {cells['detector'][0]}, attack {cells['attack'][0]}"
+
+
+def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
+    """Mean error of the attacked drones against n on a log axis: reports (baseline) and
+    verified positions, annotated (n, f); one recovered curve per f when the grid has several
+    f per n. Error bars: +/- 1 standard error of the mean."""
+    n, f = np.asarray(cells["n"]), np.asarray(cells["f"])
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    diagonal = len(np.unique(n)) == len(n)
+    order = np.argsort(n, kind="stable")
+    floor = 1e-12
+    if diagonal:
+        ax.errorbar(
+            n[order],
+            cells["baseline_mean"][order],
+            yerr=cells["baseline_sem"][order],
+            fmt="s--",
+            color="red",
+            label="reported (baseline)",
+        )
+        rec = np.maximum(cells["recovered_mean"][order], floor)
+        ax.errorbar(
+            n[order],
+            rec,
+            yerr=cells["recovered_sem"][order],
+            fmt="o-",
+            color="darkorange",
+            label="verified (SwarmRaft)",
+            capsize=3,
+        )
+        for ni, fi, r in zip(n[order], f[order], rec, strict=True):
+            ax.annotate(
+                f"({ni},{fi})",
+                (ni, r),
+                textcoords="offset points",
+                xytext=(0, 8),
+                ha="center",
+                fontsize=9,
+            )
+    else:
+        for fi in np.unique(f):
+            sel = order[f[order] == fi]
+            ax.plot(
+                n[sel],
+                np.maximum(cells["recovered_mean"][sel], floor),
+                "o-",
+                label=f"verified, f = {fi}",
+            )
+        base = [cells["baseline_mean"][n == ni].mean() for ni in np.unique(n)]
+        ax.plot(np.unique(n), base, "s--", color="red", label="reported (baseline)")
+    ax.set_yscale("log")
+    ax.set_xlabel("swarm size n")
+    ax.set_ylabel("mean error of attacked drones, m (log)")
+    ax.set_xticks(np.unique(n))
+    ax.grid(True, which="both", ls=":", alpha=0.6)
+    ax.legend()
+    ax.set_title(f"Error against swarm size\n{_title(cells)}", fontsize=10)
+    return _save(fig, path)
+
+
+def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
+    """Box plots of per-trial errors of the attacked drones, reports and verified, per (n, f),
+    on a log axis (verified errors reach 1e-9 m)."""
+    n, f = np.asarray(trials["n"]), np.asarray(trials["f"])
+    keys = sorted(set(zip(n.tolist(), f.tolist(), strict=True)))
+    floor = 1e-12
+    base = [np.maximum(trials["baseline"][(n == a) & (f == b)], floor) for a, b in keys]
+    rec = [np.maximum(trials["recovered"][(n == a) & (f == b)], floor) for a, b in keys]
+    pos = np.arange(len(keys)) * 3.0
+    fig, ax = plt.subplots(figsize=(max(7, 1.1 * len(keys)), 5))
+    b1 = ax.boxplot(
+        base,
+        positions=pos - 0.55,
+        widths=0.9,
+        patch_artist=True,
+        showfliers=True,
+        flierprops={"markersize": 2, "alpha": 0.3},
+    )
+    b2 = ax.boxplot(
+        rec,
+        positions=pos + 0.55,
+        widths=0.9,
+        patch_artist=True,
+        showfliers=True,
+        flierprops={"markersize": 2, "alpha": 0.3},
+    )
+    for patch in b1["boxes"]:
+        patch.set_facecolor("#f4a6a6")
+    for patch in b2["boxes"]:
+        patch.set_facecolor("#ffd36e")
+    ax.set_yscale("log")
+    ax.set_xticks(pos, [f"({a},{b})" for a, b in keys])
+    ax.set_xlabel("(n, f)")
+    ax.set_ylabel(f"per-trial mean error of attacked drones, m (log; floor {floor:g})")
+    ax.legend([b1["boxes"][0], b2["boxes"][0]], ["reported", "verified"], loc="center right")
+    ax.grid(True, axis="y", which="major", ls=":", alpha=0.6)
+    ax.set_title(f"Error distribution per trial{title and chr(10) + title}", fontsize=10)
+    return _save(fig, path)
+
+
+def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = "projections") -> Path:
+    """The paper's recovery picture: per case, true positions (green x), reports (red
+    triangle), verified positions (yellow star) and arrows from truth to the spoofed reports;
+    ``view`` "3d" or "projections" (XY and XZ)."""
+    if view not in ("3d", "projections"):
+        raise ValueError("view must be '3d' or 'projections'")
+    k = len(cases)
+    if view == "3d":
+        fig = plt.figure(figsize=(5.5 * k, 5.2))
+        axes = [[fig.add_subplot(1, k, i + 1, projection="3d")] for i in range(k)]
+        planes = [(0, 1, 2)]
+    else:
+        fig, grid = plt.subplots(2, k, figsize=(5.2 * k, 9.5), squeeze=False)
+        axes = [[grid[0, i], grid[1, i]] for i in range(k)]
+        planes = [(0, 1), (0, 2)]
+    names = "XYZ"
+    for case, row in zip(cases, axes, strict=True):
+        truth, rep, ver, att = case["truth"], case["reported"], case["verified"], case["attackers"]
+        for ax, plane in zip(row, planes, strict=True):
+
+            def pts(a: np.ndarray, plane: tuple[int, ...] = plane) -> list[np.ndarray]:
+                return [a[:, i] for i in plane]
+
+            ax.scatter(*pts(truth), **TRUE_STYLE)
+            ax.scatter(*pts(rep[att]), **REPORT_STYLE)
+            ax.scatter(*pts(ver), **{**RECOVERED_STYLE, "s": 90})
+            for i in np.flatnonzero(att):
+                a, b = truth[i, list(plane)], rep[i, list(plane)]
+                if len(plane) == 3:
+                    ax.plot(*np.stack([a, b]).T, ls="--", color="grey", lw=1)
+                else:
+                    ax.annotate(
+                        "",
+                        xy=b,
+                        xytext=a,
+                        arrowprops={"arrowstyle": "->", "color": "grey", "ls": "--", "lw": 1},
+                    )
+            ax.set_xlabel(f"{names[plane[0]]} (m)")
+            ax.set_ylabel(f"{names[plane[1]]} (m)")
+            if len(plane) == 3:
+                ax.set_zlabel("Z (m)")
+            else:
+                ax.set_aspect("equal", adjustable="datalim")
+                ax.grid(True, ls=":", alpha=0.5)
+        n, f = len(truth), int(att.sum())
+        err = np.linalg.norm(ver - truth, axis=1)[att].mean()
+        row[0].set_title(
+            f"n = {n}, f = {f}: mean error of attacked drones\n"
+            f"reported {np.linalg.norm(rep - truth, axis=1)[att].mean():.1f} m, "
+            f"verified {err:.2g} m",
+            fontsize=10,
+        )
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return _save(fig, path)

@@ -1,0 +1,94 @@
+"""Inter-drone ranging models. ``measure(rng, truth)`` returns ranges (T, n, n) with
+``ranges[t, i, j]`` measured by drone i to drone j, ``nan`` where unmeasured, 0 on the diagonal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmraft.world.geometry import true_distances
+
+
+def _finish(d: np.ndarray, true: np.ndarray, max_range: float | None) -> np.ndarray:
+    d = np.maximum(d, 0.0)
+    if max_range is not None:
+        d = np.where(true > max_range, np.nan, d)
+    n = d.shape[1]
+    d[:, np.arange(n), np.arange(n)] = 0.0
+    return d
+
+
+def _pair_noise(rng: np.random.Generator, shape: tuple[int, ...], symmetric: bool) -> np.ndarray:
+    """Standard normal per ordered pair, or mirrored across the diagonal when symmetric."""
+    z = rng.standard_normal(shape)
+    if symmetric:
+        upper = np.triu(z, 1)
+        z = upper + np.swapaxes(upper, 1, 2)
+    return z
+
+
+@dataclass(frozen=True)
+class ExactRanging:
+    """True distances, symmetric, every pair: the reference code (FACTS.md)."""
+
+    max_range: float | None = None
+
+    def measure(self, rng: np.random.Generator, truth: np.ndarray) -> np.ndarray:
+        true = true_distances(truth)
+        return _finish(true.copy(), true, self.max_range)
+
+
+@dataclass(frozen=True)
+class UWBRanging:
+    """UWB two-way ranging: Gaussian noise sigma (default 0.10 m, FACTS.md; 0.05-0.15 m),
+    with probability ``nlos_prob`` a positive NLOS bias uniform in ``nlos_bias`` (default
+    +0.3 to +1 m), nothing beyond ``max_range`` (reliable to 50-100 m). ``symmetric``: i and j
+    share one measurement; otherwise each direction is measured independently."""
+
+    sigma: float = 0.10
+    max_range: float | None = None
+    nlos_prob: float = 0.0
+    nlos_bias: tuple[float, float] = (0.3, 1.0)
+    symmetric: bool = False
+
+    def __post_init__(self) -> None:
+        if self.sigma < 0:
+            raise ValueError("UWB sigma must be >= 0")
+        if not 0 <= self.nlos_prob <= 1:
+            raise ValueError("UWB nlos_prob must be in [0, 1]")
+        lo, hi = self.nlos_bias
+        if lo < 0 or hi < lo:
+            raise ValueError("UWB nlos_bias must be (low, high) with 0 <= low <= high")
+        if self.max_range is not None and not self.max_range > 0:
+            raise ValueError("UWB max_range must be > 0")
+
+    def measure(self, rng: np.random.Generator, truth: np.ndarray) -> np.ndarray:
+        true = true_distances(truth)
+        d = true + self.sigma * _pair_noise(rng, true.shape, self.symmetric)
+        if self.nlos_prob > 0:
+            hit = rng.random(true.shape) < self.nlos_prob
+            d = d + np.where(hit, rng.uniform(*self.nlos_bias, size=true.shape), 0.0)
+        return _finish(d, true, self.max_range)
+
+
+@dataclass(frozen=True)
+class RSSIRanging:
+    """RSSI ranging under log-normal shadowing: the received power has Gaussian shadowing of
+    ``shadowing_db`` dB (FACTS.md: 4-8 dB) and path-loss exponent ``exponent`` (2-4), so the
+    inverted distance is d * 10^(X / (10 exponent)), X ~ N(0, shadowing_db^2)."""
+
+    shadowing_db: float = 6.0
+    exponent: float = 2.5
+    max_range: float | None = None
+    symmetric: bool = False
+
+    def __post_init__(self) -> None:
+        if self.shadowing_db < 0 or not self.exponent > 0:
+            raise ValueError("RSSI needs shadowing_db >= 0 and exponent > 0")
+
+    def measure(self, rng: np.random.Generator, truth: np.ndarray) -> np.ndarray:
+        true = true_distances(truth)
+        x = self.shadowing_db * _pair_noise(rng, true.shape, self.symmetric)
+        return _finish(true * 10.0 ** (x / (10 * self.exponent)), true, self.max_range)

@@ -40,7 +40,7 @@ def three_sigma(values: np.ndarray) -> tuple[float, float, float]:
     """(mu + 3 sigma, mu, sigma) of the finite values."""
     v = values[np.isfinite(values)]
     if v.size < 2:
-        raise ValueError("calibration needs at least 2 residuals")
+        raise ValueError("calibration needs at least 2 residuals (n >= 2 drones with ranges)")
     mu, sd = float(v.mean()), float(v.std(ddof=1))
     return mu + 3 * sd, mu, sd
 
@@ -64,7 +64,7 @@ def recovery_residuals(
     t_idx, a_idx = np.divmod(np.arange(T * n), n)
     mask = ~np.isnan(dists[t_idx, a_idx]) & (np.arange(n)[None, :] != a_idx[:, None])
     est = recover(reported[t_idx], dists[t_idx, a_idx], mask, reported[t_idx, a_idx], p)
-    ok = mask.sum(axis=1) >= 3
+    ok = mask.sum(axis=1) >= min(3, n - 1)  # small swarms: as many anchors as there are
     return np.linalg.norm(est - reported[t_idx, a_idx], axis=1)[ok]
 
 

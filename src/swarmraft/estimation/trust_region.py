@@ -94,6 +94,11 @@ def _scaled_system(
     return cost, f * rho1 / J_scale, J * J_scale[..., None]
 
 
+def _norm(a: np.ndarray) -> np.ndarray:
+    """Row norms of a (B, k) array (cheaper than np.linalg.norm for tiny rows)."""
+    return np.sqrt(np.einsum("bi,bi->b", a, a))
+
+
 def _solve_subproblem(
     uf: np.ndarray,
     s: np.ndarray,
@@ -104,38 +109,46 @@ def _solve_subproblem(
     rtol: float = 0.01,
     max_iter: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Trust-region subproblem min ||J p + f|| s.t. ||p|| <= Delta, batched (Moré 1977)."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        suf = s * uf
-        full_rank = (m >= 3) & (s[:, -1] > EPS * m * s[:, 0])
-        p_gn = -np.einsum("bij,bj->bi", V, uf / s)
-        gn_ok = full_rank & (np.linalg.norm(p_gn, axis=1) <= Delta)
+    """Trust-region subproblem min ||J p + f|| s.t. ||p|| <= Delta, batched (Moré 1977).
 
-        def phi_and_derivative(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            denom = s**2 + alpha[:, None]
-            p_norm = np.linalg.norm(suf / denom, axis=1)
-            return p_norm - Delta, -np.sum(suf**2 / denom**3, axis=1) / p_norm
+    Call under ``np.errstate(all="ignore")``: rank-deficient rows divide by zero in the
+    Gauss-Newton candidate, which is then not used."""
+    full_rank = (m >= 3) & (s[:, -1] > EPS * m * s[:, 0])
+    p = -np.einsum("bij,bj->bi", V, uf / s)
+    alpha = np.zeros_like(Delta)
+    need = np.flatnonzero(~(full_rank & (_norm(p) <= Delta)))
+    if not need.size:
+        return p, alpha
+    # Levenberg-Marquardt parameter by Moré's root finding, for the rows that need it.
+    s, V, D, fr = s[need], V[need], Delta[need], full_rank[need]
+    suf = s * uf[need]
 
-        upper = np.linalg.norm(suf, axis=1) / Delta
-        phi, dphi = phi_and_derivative(np.zeros_like(Delta))
-        lower = np.where(full_rank, -phi / dphi, 0.0)
-        fresh = ~full_rank & (alpha0 == 0)
-        alpha = np.where(fresh, np.maximum(0.001 * upper, np.sqrt(lower * upper)), alpha0)
-        active = ~gn_ok
-        for _ in range(max_iter):
-            if not active.any():
-                break
-            out = (alpha < lower) | (alpha > upper)
-            alpha = np.where(active & out, np.maximum(0.001 * upper, np.sqrt(lower * upper)), alpha)
-            phi, dphi = phi_and_derivative(alpha)
-            upper = np.where(active & (phi < 0), alpha, upper)
-            ratio = phi / dphi
-            lower = np.where(active, np.maximum(lower, alpha - ratio), lower)
-            alpha = np.where(active, alpha - (phi + Delta) * ratio / Delta, alpha)
-            active = active & ~(np.abs(phi) < rtol * Delta)
-        p = -np.einsum("bij,bj->bi", V, suf / (s**2 + alpha[:, None]))
-        p *= (Delta / np.linalg.norm(p, axis=1))[:, None]
-    return np.where(gn_ok[:, None], p_gn, p), np.where(gn_ok, 0.0, alpha)
+    def phi_and_derivative(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        denom = s**2 + a[:, None]
+        p_norm = _norm(suf / denom)
+        return p_norm - D, -np.sum(suf**2 / denom**3, axis=1) / p_norm
+
+    upper = _norm(suf) / D
+    phi, dphi = phi_and_derivative(np.zeros_like(D))
+    lower = np.where(fr, -phi / dphi, 0.0)
+    a0 = alpha0[need]
+    a = np.where(~fr & (a0 == 0), np.maximum(0.001 * upper, np.sqrt(lower * upper)), a0)
+    active = np.ones(len(need), dtype=bool)
+    for _ in range(max_iter):
+        out = (a < lower) | (a > upper)
+        a = np.where(active & out, np.maximum(0.001 * upper, np.sqrt(lower * upper)), a)
+        phi, dphi = phi_and_derivative(a)
+        upper = np.where(active & (phi < 0), a, upper)
+        ratio = phi / dphi
+        lower = np.where(active, np.maximum(lower, a - ratio), lower)
+        a = np.where(active, a - (phi + D) * ratio / D, a)
+        active &= ~(np.abs(phi) < rtol * D)
+        if not active.any():
+            break
+    q = -np.einsum("bij,bj->bi", V, suf / (s**2 + a[:, None]))
+    p[need] = q * (D / _norm(q))[:, None]
+    alpha[need] = a
+    return p, alpha
 
 
 def solve_ranges(
@@ -182,57 +195,57 @@ def solve_ranges(
     uf = np.einsum("bmk,bm->bk", U, fs)
 
     act = np.flatnonzero(status < 0)
-    while act.size:
-        xa, Da = x[act], Delta[act]
-        step, alpha_a = _solve_subproblem(uf[act], s[act], V[act], Da, alpha[act], m[act])
-        Jstep = np.einsum("bmk,bk->bm", Js[act], step)
-        predicted = -(0.5 * np.einsum("bm,bm->b", Jstep, Jstep) + np.einsum("bk,bk->b", g[act], step))
-        x_new = xa + step
-        f_new, J_new = range_residuals(x_new, anchors[act], dists[act], mask[act])
-        nfev[act] += 1
-        cost_new = 0.5 * robust_loss(f_new, loss, f_scale, cost_only=True)[0].sum(axis=1)
-        actual = cost[act] - cost_new
-        step_norm = np.linalg.norm(step, axis=1)
-
-        with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(all="ignore"):  # see _solve_subproblem
+        while act.size:
+            xa, Da = x[act], Delta[act]
+            step, alpha_a = _solve_subproblem(uf[act], s[act], V[act], Da, alpha[act], m[act])
+            Jstep = np.einsum("bmk,bk->bm", Js[act], step)
+            predicted = -(0.5 * np.einsum("bm,bm->b", Jstep, Jstep) + np.einsum("bk,bk->b", g[act], step))
+            x_new = xa + step
+            f_new, J_new = range_residuals(x_new, anchors[act], dists[act], mask[act])
+            nfev[act] += 1
+            cost_new = 0.5 * robust_loss(f_new, loss, f_scale, cost_only=True)[0].sum(axis=1)
+            actual = cost[act] - cost_new
+            step_norm = _norm(step)
             ratio = np.where(
                 predicted > 0,
                 actual / np.where(predicted > 0, predicted, 1.0),
                 np.where((predicted == 0) & (actual == 0), 1.0, 0.0),
             )
-        Delta_new = np.where(
-            ratio < 0.25,
-            0.25 * step_norm,
-            np.where((ratio > 0.75) & (step_norm > 0.95 * Da), 2.0 * Da, Da),
-        )
-        ftol_ok = (actual < ftol * cost[act]) & (ratio > 0.25)
-        xtol_ok = step_norm < xtol * (xtol + np.linalg.norm(xa, axis=1))
-        term = np.select([ftol_ok & xtol_ok, ftol_ok, xtol_ok], [4, 2, 3], default=-1)
-        terminated = term >= 0
-        accepted = actual > 0
+            Delta_new = np.where(
+                ratio < 0.25,
+                0.25 * step_norm,
+                np.where((ratio > 0.75) & (step_norm > 0.95 * Da), 2.0 * Da, Da),
+            )
+            ftol_ok = (actual < ftol * cost[act]) & (ratio > 0.25)
+            xtol_ok = step_norm < xtol * (xtol + _norm(xa))
+            term = np.where(ftol_ok, np.where(xtol_ok, 4, 2), np.where(xtol_ok, 3, -1))
+            terminated = term >= 0
+            accepted = actual > 0
 
-        with np.errstate(divide="ignore", invalid="ignore"):
             alpha[act] = np.where(terminated, alpha_a, alpha_a * Da / Delta_new)
-        Delta[act] = np.where(terminated, Da, Delta_new)
-        status[act] = term
+            Delta[act] = np.where(terminated, Da, Delta_new)
+            status[act] = term
 
-        take = act[accepted]
-        if take.size:
-            x[take] = x_new[accepted]
-            cost[take] = cost_new[accepted]
-            renew = accepted & ~terminated
-            upd = act[renew]
-            if upd.size:
-                _, fs_u, Js_u = _scaled_system(f_new[renew], J_new[renew], loss, f_scale)
-                Js[upd], fs[upd] = Js_u, fs_u
-                g[upd] = np.einsum("bmk,bm->bk", Js_u, fs_u)
-                U_u, s_u, Vt_u = np.linalg.svd(Js_u, full_matrices=False)
-                s[upd], V[upd] = s_u, np.swapaxes(Vt_u, 1, 2)
-                uf[upd] = np.einsum("bmk,bm->bk", U_u, fs_u)
-                status[upd[np.abs(g[upd]).max(axis=1) < gtol]] = 1
-        running = status[act] < 0
-        status[act[running & (nfev[act] >= max_nfev)]] = 0
-        act = act[status[act] < 0]
+            take = act[accepted]
+            if take.size:
+                x[take] = x_new[accepted]
+                cost[take] = cost_new[accepted]
+                # SciPy re-evaluates the gradient after every accepted step, and its gtol test
+                # then takes precedence over a termination found in the same iteration.
+                renew = accepted
+                upd = act[renew]
+                if upd.size:
+                    _, fs_u, Js_u = _scaled_system(f_new[renew], J_new[renew], loss, f_scale)
+                    Js[upd], fs[upd] = Js_u, fs_u
+                    g[upd] = np.einsum("bmk,bm->bk", Js_u, fs_u)
+                    U_u, s_u, Vt_u = np.linalg.svd(Js_u, full_matrices=False)
+                    s[upd], V[upd] = s_u, np.swapaxes(Vt_u, 1, 2)
+                    uf[upd] = np.einsum("bmk,bm->bk", U_u, fs_u)
+                    status[upd[np.abs(g[upd]).max(axis=1) < gtol]] = 1
+            running = status[act] < 0
+            status[act[running & (nfev[act] >= max_nfev)]] = 0
+            act = act[status[act] < 0]
     return SolveResult(x=x, cost=cost, nfev=nfev, status=status)
 
 

@@ -1,0 +1,108 @@
+"""Sweeps: same seed, same tables, whatever the executor; resume; validated config."""
+
+import json
+
+import numpy as np
+import pytest
+
+from swarmraft.experiments import ConfigError, build_config, run_sweep
+from swarmraft.experiments.tables import read_table
+
+
+def small(preset="reference", **kw):
+    base = {"n": (5, 7), "trials": 250, "chunk_size": 100, "seed": 7}
+    return build_config(preset, **{**base, **kw})
+
+
+def test_same_seed_same_cells_for_1_and_2_workers_and_dask(tmp_path):
+    cfg = small()
+    one = run_sweep(cfg, tmp_path / "w1", workers=1)
+    two = run_sweep(cfg, tmp_path / "w2", workers=2)
+    dask = run_sweep(cfg, tmp_path / "dask", workers=2, scheduler="local")
+    assert "Dask" in dask.executor and "2 local" in two.executor and one.executor == "inline"
+    ref = (tmp_path / "w1" / "cells.csv").read_bytes()
+    assert (tmp_path / "w2" / "cells.csv").read_bytes() == ref
+    assert (tmp_path / "dask" / "cells.csv").read_bytes() == ref
+    assert (tmp_path / "w2" / "trials.csv").read_bytes() == (tmp_path / "w1" / "trials.csv").read_bytes()
+
+
+def test_tables_and_run_json(tmp_path):
+    res = run_sweep(small(), tmp_path, workers=1)
+    cells = read_table(tmp_path / "cells.csv")
+    assert list(zip(cells["n"], cells["f"], strict=True)) == [(5, 1), (5, 2), (7, 1), (7, 2), (7, 3)]
+    assert (cells["trials"] == 250).all()
+    trials = read_table(tmp_path / "trials.csv")
+    assert len(trials["n"]) == 5 * 250
+    assert sorted(set(trials["trial"].tolist())) == list(range(250))
+    run = json.loads((tmp_path / "run.json").read_text())
+    assert run["seed"] == 7 and run["complete"] and run["config"]["preset"] == "reference"
+    assert set(res.cells) >= {
+        "baseline_mean",
+        "recovered_mean",
+        "recovered_median",
+        "recovered_p99",
+        "frac_over_1m",
+        "recovered_sem",
+        "honest_mean",
+        "detection_rate",
+        "false_positive_rate",
+    }
+    # the paper's metric: baseline is the mean report error of the attackers (~28.8 m)
+    assert 25 < cells["baseline_mean"].min() and cells["baseline_mean"].max() < 33
+
+
+def test_diagonal_grid():
+    cfg = build_config("reference", n=(3, 4, 5, 17), diagonal=True)
+    assert cfg.cells() == [(3, 1), (5, 2), (17, 8)]
+
+
+def test_different_seed_different_results(tmp_path):
+    a = run_sweep(small(seed=1), tmp_path / "a", workers=1).cells["recovered_mean"]
+    b = run_sweep(small(seed=2), tmp_path / "b", workers=1).cells["recovered_mean"]
+    assert not np.array_equal(a, b)
+
+
+def test_resume_recomputes_only_missing_cells(tmp_path):
+    cfg = small()
+    run_sweep(cfg, tmp_path, workers=1)
+    before = (tmp_path / "cells.csv").read_bytes()
+    (tmp_path / "cells" / "n7_f2.csv").unlink()
+    again = run_sweep(cfg, tmp_path, workers=1)
+    assert again.computed == [(7, 2)]
+    assert len(again.reused) == 4
+    assert (tmp_path / "cells.csv").read_bytes() == before
+
+
+def test_resume_refuses_a_different_config(tmp_path):
+    run_sweep(small(), tmp_path, workers=1)
+    with pytest.raises(ConfigError, match="trials differ"):
+        run_sweep(small(trials=300), tmp_path, workers=1)
+
+
+def test_realistic_preset_calibrates_thresholds(tmp_path):
+    cfg = small("realistic", n=(9,), f=(4,), trials=100, calibration_trials=200)
+    run_sweep(cfg, tmp_path, workers=1)
+    run = json.loads((tmp_path / "run.json").read_text())
+    tau = run["detector_params"]["9"]["tau"]
+    cal = run["calibration"]["9"]
+    assert tau == pytest.approx(cal["pair_mean"] + 3 * cal["pair_std"])
+    assert 3 < tau < 15  # GNSS 1.5/3 m per axis on both ends of a pair, UWB 0.1 m
+
+
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        ({"trials": 0}, r"^trials: "),
+        ({"n": (0, 5)}, r"n: every swarm size"),
+        ({"detector": "nope"}, r"unknown name 'nope'"),
+        ({"detector_params": {"tau": -1}}, r"paper\.tau"),
+        ({"gnss": {"sigma_h": -1}}, r"^gnss\.sigma_h: "),
+        ({"attack": {"name": "teleport"}}, r"^attack\.name: "),
+        ({"n": (3,), "f": (2,)}, r"no cell"),
+        ({"colour": "red"}, r"^colour: "),
+    ],
+)
+def test_bad_config_is_one_line_naming_the_field(kw, match):
+    with pytest.raises(ConfigError, match=match) as info:
+        build_config("reference", **kw)
+    assert "\n" not in str(info.value)

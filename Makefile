@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m swarmraft.demo
+	$(BIN)/swarmraft demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks

@@ -1,0 +1,405 @@
+"""A Raft node as a pure state machine, in the style of etcd-io/raft.
+
+The host drives it: ``tick()`` on a clock, ``step(message)`` for each message received,
+``propose(data)`` for new entries, then ``ready()`` -> persist, send, apply -> ``advance()``.
+No I/O, no clock, no global randomness: election timeouts come from the ``random.Random``
+passed in.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+from swarmraft.raft.log import RaftLog
+from swarmraft.raft.storage import Storage
+from swarmraft.raft.types import (
+    Entry,
+    EntryKind,
+    HardState,
+    Message,
+    MsgType,
+    NotLeader,
+    RaftConfig,
+    Ready,
+    Role,
+    Status,
+)
+
+
+@dataclass
+class Progress:
+    """The leader's view of one follower. ``probe``: one append in flight until answered;
+    ``replicate``: appends are pipelined optimistically."""
+
+    match: int = 0
+    next: int = 1
+    probe: bool = True
+    paused: bool = False
+    recent_active: bool = False
+
+
+class RaftNode:
+    def __init__(self, config: RaftConfig, storage: Storage, rng: random.Random, applied: int = 0) -> None:
+        self.config = config
+        self.id = config.id
+        self.rng = rng
+        hs = storage.initial_state()
+        self.log = RaftLog(storage, committed=hs.commit, applied=applied)
+        self.term = hs.term
+        self.vote = hs.vote
+        self._persisted_hs = hs
+        self.role = Role.FOLLOWER
+        self.lead: int | None = None
+        self.votes: dict[int, bool] = {}
+        self.prs: dict[int, Progress] = {}
+        self.msgs: list[Message] = []
+        self.election_elapsed = 0
+        self.heartbeat_elapsed = 0
+        self.randomized_timeout = self._draw_timeout()
+
+    # -- public API -----------------------------------------------------------------------
+    @property
+    def status(self) -> Status:
+        return Status(
+            id=self.id,
+            role=self.role,
+            term=self.term,
+            vote=self.vote,
+            leader=self.lead,
+            commit=self.log.committed,
+            applied=self.log.applied,
+            last_index=self.log.last_index(),
+        )
+
+    def tick(self) -> None:
+        if self.role == Role.LEADER:
+            self._tick_leader()
+            return
+        self.election_elapsed += 1
+        if self.election_elapsed >= self.randomized_timeout:
+            self.election_elapsed = 0
+            self.campaign()
+
+    def campaign(self) -> None:
+        """Start an election now (a pre-vote first when PreVote is on)."""
+        if self.role == Role.LEADER:
+            return
+        if self.config.pre_vote:
+            self._become_pre_candidate()
+        else:
+            self._become_candidate()
+
+    def propose(self, data: bytes) -> int | None:
+        """Propose an entry. The leader appends it and returns its index; a follower that
+        knows the leader forwards it (returns None); otherwise `NotLeader`."""
+        if not isinstance(data, bytes | bytearray):
+            raise TypeError("propose: data must be bytes")
+        if self.role == Role.LEADER:
+            return self._append_and_broadcast([bytes(data)])
+        if self.role == Role.FOLLOWER and self.lead is not None and self.config.forward_proposals:
+            self._send(Message(MsgType.PROP, self.id, self.lead, 0, entries=(Entry(0, 0, bytes(data)),)))
+            return None
+        raise NotLeader(self.id, self.lead)
+
+    def ready(self) -> Ready | None:
+        hs = HardState(self.term, self.vote, self.log.committed)
+        rd = Ready(
+            hard_state=hs if hs != self._persisted_hs else None,
+            entries=self.log.unstable_entries(),
+            committed=tuple(self.log.next_committed()),
+            messages=tuple(self.msgs),
+        )
+        return rd if rd else None
+
+    def advance(self, rd: Ready) -> None:
+        if rd.hard_state is not None:
+            self._persisted_hs = rd.hard_state
+        if rd.entries:
+            last = rd.entries[-1]
+            self.log.stable_to(last.index, last.term)
+        if rd.committed:
+            self.log.applied_to(rd.committed[-1].index)
+        del self.msgs[: len(rd.messages)]
+
+    def step(self, m: Message) -> None:
+        if m.to != self.id:
+            raise ValueError(f"node {self.id}: message for node {m.to}")
+        if m.type == MsgType.PROP:
+            self._step_prop(m)
+            return
+        if m.term > self.term:
+            if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
+                in_lease = (
+                    self.config.check_quorum
+                    and self.lead is not None
+                    and self.election_elapsed < self.config.election_tick
+                )
+                if in_lease:
+                    return  # we heard from a live leader recently: ignore the disruption
+            if m.type == MsgType.PRE_VOTE or (m.type == MsgType.PRE_VOTE_RESP and not m.reject):
+                pass  # pre-votes never change our term
+            elif m.type in (MsgType.APP, MsgType.HEARTBEAT):
+                self._become_follower(m.term, m.frm)
+            else:
+                self._become_follower(m.term, None)
+        elif m.term < self.term:
+            if (self.config.check_quorum or self.config.pre_vote) and m.type in (
+                MsgType.APP,
+                MsgType.HEARTBEAT,
+            ):
+                # tell a stale leader about the newer term so it steps down
+                self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term))
+            elif m.type == MsgType.PRE_VOTE:
+                self._send(Message(MsgType.PRE_VOTE_RESP, self.id, m.frm, self.term, reject=True))
+            return
+
+        if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
+            self._handle_vote_request(m)
+        elif self.role == Role.LEADER:
+            self._step_leader(m)
+        elif self.role in (Role.CANDIDATE, Role.PRE_CANDIDATE):
+            self._step_candidate(m)
+        else:
+            self._step_follower(m)
+
+    # -- roles ----------------------------------------------------------------------------
+    def _draw_timeout(self) -> int:
+        et = self.config.election_tick
+        return et + self.rng.randrange(et)  # uniform in [election_tick, 2 election_tick)
+
+    def _reset(self, term: int) -> None:
+        if term != self.term:
+            self.term = term
+            self.vote = None
+        self.lead = None
+        self.election_elapsed = 0
+        self.heartbeat_elapsed = 0
+        self.randomized_timeout = self._draw_timeout()
+        self.votes = {}
+
+    def _become_follower(self, term: int, lead: int | None) -> None:
+        self._reset(term)
+        self.role = Role.FOLLOWER
+        self.lead = lead
+
+    def _become_pre_candidate(self) -> None:
+        # A pre-candidate keeps its term and vote: it only asks whether it could win.
+        self.role = Role.PRE_CANDIDATE
+        self.votes = {}
+        self.lead = None
+        self.election_elapsed = 0
+        self.randomized_timeout = self._draw_timeout()
+        self._poll(MsgType.PRE_VOTE, self.term + 1)
+
+    def _become_candidate(self) -> None:
+        self._reset(self.term + 1)
+        self.role = Role.CANDIDATE
+        self.vote = self.id
+        self._poll(MsgType.VOTE, self.term)
+
+    def _poll(self, kind: MsgType, term: int) -> None:
+        self.votes = {self.id: True}
+        if self._tally() == "won":
+            self._win(kind)
+            return
+        for p in self.config.peers:
+            self._send(
+                Message(kind, self.id, p, term, log_term=self.log.last_term(), index=self.log.last_index())
+            )
+
+    def _quorum(self) -> int:
+        return len(self.config.members) // 2 + 1
+
+    def _tally(self) -> str:
+        granted = sum(self.votes.values())
+        rejected = len(self.votes) - granted
+        if granted >= self._quorum():
+            return "won"
+        if rejected >= self._quorum():
+            return "lost"
+        return "pending"
+
+    def _win(self, kind: MsgType) -> None:
+        if kind == MsgType.PRE_VOTE:
+            self._become_candidate()
+        else:
+            self._become_leader()
+
+    def _become_leader(self) -> None:
+        self._reset(self.term)
+        self.role = Role.LEADER
+        self.lead = self.id
+        last = self.log.last_index()
+        self.prs = {p: Progress(match=0, next=last + 1) for p in self.config.peers}
+        # A no-op entry of the new term lets entries of earlier terms commit through it.
+        self._append_and_broadcast([b""], kind=EntryKind.NOOP)
+
+    # -- leader ---------------------------------------------------------------------------
+    def _tick_leader(self) -> None:
+        self.heartbeat_elapsed += 1
+        self.election_elapsed += 1
+        if self.election_elapsed >= self.config.election_tick:
+            self.election_elapsed = 0
+            if self.config.check_quorum:
+                active = 1 + sum(pr.recent_active for pr in self.prs.values())
+                for pr in self.prs.values():
+                    pr.recent_active = False
+                if active < self._quorum():
+                    self._become_follower(self.term, None)
+                    return
+        if self.heartbeat_elapsed >= self.config.heartbeat_tick:
+            self.heartbeat_elapsed = 0
+            for p, pr in self.prs.items():
+                self._send(
+                    Message(
+                        MsgType.HEARTBEAT, self.id, p, self.term, commit=min(pr.match, self.log.committed)
+                    )
+                )
+
+    def _append_and_broadcast(self, datas: list[bytes], kind: EntryKind = EntryKind.NORMAL) -> int:
+        first = self.log.last_index() + 1
+        entries = [Entry(self.term, first + i, d, kind) for i, d in enumerate(datas)]
+        last = self.log.append(entries)
+        self._maybe_commit()  # a one-node cluster commits at once
+        for p in self.prs:
+            self._send_append(p)
+        return last
+
+    def _send_append(self, to: int) -> None:
+        pr = self.prs[to]
+        if pr.probe and pr.paused:
+            return
+        prev = pr.next - 1
+        entries = self.log.slice(pr.next, pr.next + self.config.max_entries_per_msg)
+        self._send(
+            Message(
+                MsgType.APP,
+                self.id,
+                to,
+                self.term,
+                log_term=self.log.term(prev) or 0,
+                index=prev,
+                entries=tuple(entries),
+                commit=self.log.committed,
+            )
+        )
+        if pr.probe:
+            pr.paused = True
+        elif entries:
+            pr.next = entries[-1].index + 1
+
+    def _maybe_commit(self) -> bool:
+        matches = sorted([self.log.last_index(), *(pr.match for pr in self.prs.values())], reverse=True)
+        n = matches[self._quorum() - 1]
+        # The commit rule: only an entry of the current term commits by counting replicas.
+        if n > self.log.committed and self.log.term(n) == self.term:
+            self.log.commit_to(n)
+            return True
+        return False
+
+    def _step_leader(self, m: Message) -> None:
+        pr = self.prs.get(m.frm)
+        if pr is None:
+            return
+        if m.type == MsgType.APP_RESP:
+            pr.recent_active = True
+            if m.reject:
+                if m.index < pr.match:
+                    return  # stale
+                pr.next = max(pr.match + 1, min(m.reject_hint, m.index))
+                pr.probe, pr.paused = True, False
+                self._send_append(m.frm)
+                return
+            pr.paused = False
+            if m.index > pr.match:
+                pr.match = m.index
+                pr.probe = False
+            pr.next = max(pr.next, pr.match + 1)
+            if self._maybe_commit():
+                for p in self.prs:
+                    self._send_append(p)
+            elif pr.match < self.log.last_index():
+                self._send_append(m.frm)
+        elif m.type == MsgType.HEARTBEAT_RESP:
+            pr.recent_active = True
+            pr.paused = False
+            if pr.match < self.log.last_index():
+                self._send_append(m.frm)
+
+    def _step_prop(self, m: Message) -> None:
+        datas = [e.data for e in m.entries]
+        if self.role == Role.LEADER:
+            self._append_and_broadcast(datas)
+        elif self.role == Role.FOLLOWER and self.lead is not None and self.config.forward_proposals:
+            self._send(Message(MsgType.PROP, self.id, self.lead, 0, entries=m.entries))
+        # otherwise dropped: the proposer learns it was not committed and may retry
+
+    # -- candidate and follower -----------------------------------------------------------
+    def _handle_vote_request(self, m: Message) -> None:
+        pre = m.type == MsgType.PRE_VOTE
+        can_vote = (
+            self.vote == m.frm or (self.vote is None and self.lead is None) or (pre and m.term > self.term)
+        )
+        resp = MsgType.PRE_VOTE_RESP if pre else MsgType.VOTE_RESP
+        if can_vote and self.log.is_up_to_date(m.index, m.log_term):
+            self._send(Message(resp, self.id, m.frm, m.term))
+            if not pre:
+                self.election_elapsed = 0
+                self.vote = m.frm
+        else:
+            self._send(Message(resp, self.id, m.frm, self.term, reject=True))
+
+    def _step_candidate(self, m: Message) -> None:
+        if m.type == MsgType.APP:
+            self._become_follower(m.term, m.frm)
+            self._handle_append(m)
+        elif m.type == MsgType.HEARTBEAT:
+            self._become_follower(m.term, m.frm)
+            self._handle_heartbeat(m)
+        elif (m.type == MsgType.VOTE_RESP and self.role == Role.CANDIDATE) or (
+            m.type == MsgType.PRE_VOTE_RESP and self.role == Role.PRE_CANDIDATE
+        ):
+            self.votes.setdefault(m.frm, not m.reject)
+            outcome = self._tally()
+            if outcome == "won":
+                self._win(MsgType.PRE_VOTE if self.role == Role.PRE_CANDIDATE else MsgType.VOTE)
+            elif outcome == "lost":
+                self._become_follower(self.term, None)
+
+    def _step_follower(self, m: Message) -> None:
+        if m.type == MsgType.APP:
+            self.election_elapsed = 0
+            self.lead = m.frm
+            self._handle_append(m)
+        elif m.type == MsgType.HEARTBEAT:
+            self.election_elapsed = 0
+            self.lead = m.frm
+            self._handle_heartbeat(m)
+
+    def _handle_append(self, m: Message) -> None:
+        if m.index < self.log.committed:
+            self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=self.log.committed))
+            return
+        last = self.log.maybe_append(m.index, m.log_term, m.commit, m.entries)
+        if last is not None:
+            self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=last))
+        else:
+            self._send(
+                Message(
+                    MsgType.APP_RESP,
+                    self.id,
+                    m.frm,
+                    self.term,
+                    index=m.index,
+                    reject=True,
+                    reject_hint=self.log.conflict_hint(m.index),
+                )
+            )
+
+    def _handle_heartbeat(self, m: Message) -> None:
+        self.log.commit_to(min(m.commit, self.log.last_index()))
+        self._send(Message(MsgType.HEARTBEAT_RESP, self.id, m.frm, self.term))
+
+    def _send(self, m: Message) -> None:
+        self.msgs.append(m)

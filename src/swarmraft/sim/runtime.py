@@ -1,0 +1,317 @@
+"""A deterministic discrete-event runtime for Raft nodes, and `Cluster`, the scenario API.
+
+One event queue ordered by (virtual time in ms, insertion sequence): the same seed and the
+same calls give the same run, event for event. Each node ticks every ``tick_ms`` (with a
+per-node phase), messages cross the `Network` model, a crash drops the node's volatile state
+(its storage, the "disk", survives) and a restart rebuilds the node from storage. After
+every event the `InvariantChecker` verifies Raft's safety properties.
+
+Example::
+
+    from swarmraft.sim import Cluster
+
+    c = Cluster(5, seed=1)
+    c.run_until(lambda: c.leader() is not None, timeout_ms=2000)
+    c.propose(b"hello")
+    c.crash(c.leader())
+    c.run(1000)
+    assert all(c.applied(i) == [b"hello"] for i in c.alive_ids())
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from swarmraft.raft import (
+    Entry,
+    EntryKind,
+    MemoryStorage,
+    Message,
+    NotLeader,
+    RaftConfig,
+    RaftNode,
+    Status,
+)
+from swarmraft.sim.invariants import InvariantChecker
+from swarmraft.sim.network import LinkModel, Network
+
+
+@dataclass(order=True)
+class _Event:
+    time: float
+    seq: int
+    action: Callable[[], None]
+
+
+class EventLoop:
+    """Virtual clock and event queue with deterministic tie-breaks (insertion order)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self._queue: list[tuple[float, int, Callable[[], None]]] = []
+        self._seq = 0
+        self.events = 0
+
+    def at(self, time: float, action: Callable[[], None]) -> None:
+        self._seq += 1
+        heapq.heappush(self._queue, (time, self._seq, action))
+
+    def after(self, delay: float, action: Callable[[], None]) -> None:
+        self.at(self.now + delay, action)
+
+    def step(self) -> bool:
+        if not self._queue:
+            return False
+        self.now, _, action = heapq.heappop(self._queue)
+        self.events += 1
+        action()
+        return True
+
+    def next_time(self) -> float | None:
+        return self._queue[0][0] if self._queue else None
+
+
+class Cluster:
+    """n Raft nodes (ids 1..n) in the simulator.
+
+    ``tick_ms`` 10 with ``election_tick`` 15 and ``heartbeat_tick`` 5 gives 150-300 ms
+    election timeouts and 50 ms heartbeats (FACTS.md, the Raft paper); the default network
+    has 1-3 ms one-way delay and no loss.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        seed: int = 0,
+        tick_ms: float = 10.0,
+        election_tick: int = 15,
+        heartbeat_tick: int = 5,
+        network: Network | LinkModel | None = None,
+        pre_vote: bool = True,
+        check_quorum: bool = True,
+        check_invariants: bool = True,
+        on_apply: Callable[[int, Entry], None] | None = None,
+    ) -> None:
+        if n < 1:
+            raise ValueError("Cluster: n must be >= 1")
+        if tick_ms <= 0:
+            raise ValueError("Cluster: tick_ms must be > 0")
+        self.n, self.seed, self.tick_ms = n, seed, tick_ms
+        self.ids = tuple(range(1, n + 1))
+        self.network = network if isinstance(network, Network) else Network(network or LinkModel())
+        self.loop = EventLoop()
+        self.rng = random.Random(seed)
+        self.configs = {
+            i: RaftConfig(
+                id=i,
+                peers=tuple(p for p in self.ids if p != i),
+                election_tick=election_tick,
+                heartbeat_tick=heartbeat_tick,
+                pre_vote=pre_vote,
+                check_quorum=check_quorum,
+            )
+            for i in self.ids
+        }
+        self.storage = {i: MemoryStorage() for i in self.ids}
+        self.nodes: dict[int, RaftNode | None] = {}
+        self._incarnation = dict.fromkeys(self.ids, 0)
+        self._applied: dict[int, list[Entry]] = {i: [] for i in self.ids}
+        self.checker = InvariantChecker(seed) if check_invariants else None
+        self.sent: Counter[str] = Counter()
+        self.delivered: Counter[str] = Counter()
+        self.on_apply = on_apply
+        for i in self.ids:
+            self._start(i)
+
+    # -- node lifecycle -------------------------------------------------------------------
+    def _start(self, i: int) -> None:
+        self._incarnation[i] += 1
+        inc = self._incarnation[i]
+        node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + inc)
+        self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng)
+        self._applied[i] = []  # the state machine is volatile: it is rebuilt by re-applying
+        if self.checker:
+            self.checker.restarted(i)
+        phase = self.rng.uniform(0, self.tick_ms)
+        self.loop.after(phase, lambda: self._tick(i, inc))
+        self._process(i)
+
+    def _tick(self, i: int, inc: int) -> None:
+        node = self.nodes.get(i)
+        if node is None or self._incarnation[i] != inc:
+            return
+        node.tick()
+        self._process(i)
+        self.loop.after(self.tick_ms, lambda: self._tick(i, inc))
+
+    def _deliver(self, m: Message) -> None:
+        node = self.nodes.get(m.to)
+        if node is None:
+            return
+        self.delivered[m.type.value] += 1
+        node.step(m)
+        self._process(m.to)
+
+    def _process(self, i: int) -> None:
+        """Handle every Ready: persist, then send, then apply, then advance."""
+        node = self.nodes[i]
+        assert node is not None
+        while (rd := node.ready()) is not None:
+            self.storage[i].save(rd.hard_state, rd.entries)
+            for m in rd.messages:
+                self.sent[m.type.value] += 1
+                for d in self.network.delays(self.rng, m.frm, m.to):
+                    self.loop.after(d, lambda m=m: self._deliver(m))
+            for e in rd.committed:
+                self._applied[i].append(e)
+                if self.checker:
+                    self.checker.applied_entry(self.loop.now, i, e)
+                if self.on_apply:
+                    self.on_apply(i, e)
+            node.advance(rd)
+        if self.checker:
+            hs = self.storage[i].initial_state()
+            self.checker.check(self.loop.now, node, hs.term, hs.vote)
+
+    # -- running --------------------------------------------------------------------------
+    @property
+    def now(self) -> float:
+        return self.loop.now
+
+    def run(self, ms: float) -> None:
+        """Advance virtual time by ``ms``."""
+        end = self.loop.now + ms
+        while (t := self.loop.next_time()) is not None and t <= end:
+            self.loop.step()
+        self.loop.now = end
+
+    def run_until(self, predicate: Callable[[], bool], timeout_ms: float) -> bool:
+        """Run until ``predicate()`` holds (checked after every event) or the timeout;
+        returns whether it held."""
+        end = self.loop.now + timeout_ms
+        if predicate():
+            return True
+        while (t := self.loop.next_time()) is not None and t <= end:
+            self.loop.step()
+            if predicate():
+                return True
+        self.loop.now = end
+        return False
+
+    # -- faults ---------------------------------------------------------------------------
+    def _check_id(self, i: int) -> None:
+        if i not in self.configs:
+            raise ValueError(f"no node {i}; ids are 1..{self.n}")
+
+    def crash(self, i: int) -> None:
+        """Stop node i: its volatile state is lost, its storage keeps what was persisted."""
+        self._check_id(i)
+        self.nodes[i] = None
+
+    def restart(self, i: int) -> None:
+        """Restart a crashed node from its storage."""
+        self._check_id(i)
+        if self.nodes.get(i) is not None:
+            raise ValueError(f"node {i} is running; crash it first")
+        self._start(i)
+
+    def alive(self, i: int) -> bool:
+        self._check_id(i)
+        return self.nodes.get(i) is not None
+
+    def alive_ids(self) -> list[int]:
+        return [i for i in self.ids if self.nodes.get(i) is not None]
+
+    def partition(self, *groups: Iterable[int]) -> None:
+        """Split the network: nodes talk only within their group; nodes in no group are
+        isolated."""
+        gs = [frozenset(g) for g in groups]
+        for g in gs:
+            for i in g:
+                self._check_id(i)
+        self.network.groups = gs
+
+    def isolate(self, i: int) -> None:
+        self._check_id(i)
+        self.partition([i], [p for p in self.ids if p != i])
+
+    def cut(self, a: int, b: int) -> None:
+        """Drop every message from a to b (one way)."""
+        self._check_id(a), self._check_id(b)
+        self.network.cuts.add((a, b))
+
+    def heal(self) -> None:
+        """Remove partitions and cuts (link loss and delay settings stay)."""
+        self.network.groups = []
+        self.network.cuts.clear()
+
+    def set_link(self, a: int, b: int, **changes: Any) -> None:
+        """Change both directions of link a-b: loss=, delay_ms=(lo, hi), duplicate=, reorder=."""
+        self._check_id(a), self._check_id(b)
+        if "delay_ms" in changes and isinstance(changes["delay_ms"], int | float):
+            changes["delay_ms"] = (float(changes["delay_ms"]), float(changes["delay_ms"]))
+        self.network.set_link(a, b, **changes)
+
+    def set_loss(self, p: float) -> None:
+        """Loss probability p on every link."""
+        self.network.set_all(loss=p)
+
+    # -- client side ----------------------------------------------------------------------
+    def propose(self, data: bytes, via: int | None = None) -> bool:
+        """Propose ``data``. With ``via`` None, at the current leader; otherwise at node
+        ``via`` (a follower forwards it to the leader it knows). Returns True if a leader
+        accepted it into its log now (a forwarded proposal returns False: it is in flight)."""
+        target = self.leader() if via is None else via
+        if target is None:
+            return False
+        self._check_id(target)
+        node = self.nodes.get(target)
+        if node is None:
+            return False
+        try:
+            index = node.propose(data)
+        except NotLeader:
+            return False
+        self._process(target)
+        return index is not None
+
+    def leader(self) -> int | None:
+        """The live leader of the highest term, or None."""
+        best = None
+        for i in self.alive_ids():
+            node = self.nodes[i]
+            assert node is not None
+            if node.role == "leader" and (best is None or node.term > self.nodes[best].term):  # type: ignore[union-attr]
+                best = i
+        return best
+
+    def status(self, i: int) -> Status:
+        self._check_id(i)
+        node = self.nodes.get(i)
+        if node is None:
+            raise ValueError(f"node {i} is crashed")
+        return node.status
+
+    def log(self, i: int) -> list[Entry]:
+        """Node i's log (persisted and unstable), entry 1 first."""
+        self._check_id(i)
+        node = self.nodes.get(i)
+        if node is None:
+            last = self.storage[i].last_index()
+            return self.storage[i].entries(1, last + 1)
+        return node.log.slice(1, node.log.last_index() + 1)
+
+    def applied(self, i: int) -> list[bytes]:
+        """Payloads node i applied, in order, without the leaders' no-op entries."""
+        self._check_id(i)
+        return [e.data for e in self._applied[i] if e.kind != EntryKind.NOOP]
+
+    @property
+    def messages(self) -> Counter[str]:
+        """Messages sent, by type (MsgApp, MsgVote, ...)."""
+        return self.sent

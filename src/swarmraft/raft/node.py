@@ -102,15 +102,28 @@ class RaftNode:
             return None
         raise NotLeader(self.id, self.lead)
 
+    def has_ready(self) -> bool:
+        """Whether `ready` would return work (cheap: no objects are built)."""
+        p, log = self._persisted_hs, self.log
+        return bool(
+            self.msgs
+            or log.unstable
+            or self.term != p.term
+            or self.vote != p.vote
+            or log.committed != p.commit
+            or (log.committed > log.applied and log.stable_last() > log.applied)
+        )
+
     def ready(self) -> Ready | None:
+        if not self.has_ready():
+            return None
         hs = HardState(self.term, self.vote, self.log.committed)
-        rd = Ready(
+        return Ready(
             hard_state=hs if hs != self._persisted_hs else None,
             entries=self.log.unstable_entries(),
             committed=tuple(self.log.next_committed()),
             messages=tuple(self.msgs),
         )
-        return rd if rd else None
 
     def advance(self, rd: Ready) -> None:
         if rd.hard_state is not None:

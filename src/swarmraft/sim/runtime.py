@@ -1,8 +1,9 @@
 """A deterministic discrete-event runtime for Raft nodes, and `Cluster`, the scenario API.
 
 One event queue ordered by (virtual time in ms, insertion sequence): the same seed and the
-same calls give the same run, event for event. Each node ticks every ``tick_ms`` (with a
-per-node phase), messages cross the `Network` model, a crash drops the node's volatile state
+same calls give the same run, event for event. Every ``tick_ms`` one event ticks each live
+node in id order (election timeouts are randomised per node, so lockstep ticks do not
+synchronise elections), messages cross the `Network` model, a crash drops the node's volatile state
 (its storage, the "disk", survives) and a restart rebuilds the node from storage. After
 every event the `InvariantChecker` verifies Raft's safety properties.
 
@@ -24,7 +25,6 @@ import heapq
 import random
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from typing import Any
 
 from swarmraft.raft import (
@@ -41,35 +41,28 @@ from swarmraft.sim.invariants import InvariantChecker
 from swarmraft.sim.network import LinkModel, Network
 
 
-@dataclass(order=True)
-class _Event:
-    time: float
-    seq: int
-    action: Callable[[], None]
-
-
 class EventLoop:
     """Virtual clock and event queue with deterministic tie-breaks (insertion order)."""
 
     def __init__(self) -> None:
         self.now = 0.0
-        self._queue: list[tuple[float, int, Callable[[], None]]] = []
+        self._queue: list[tuple[float, int, Callable[..., None], tuple[Any, ...]]] = []
         self._seq = 0
         self.events = 0
 
-    def at(self, time: float, action: Callable[[], None]) -> None:
+    def at(self, time: float, action: Callable[..., None], *args: Any) -> None:
         self._seq += 1
-        heapq.heappush(self._queue, (time, self._seq, action))
+        heapq.heappush(self._queue, (time, self._seq, action, args))
 
-    def after(self, delay: float, action: Callable[[], None]) -> None:
-        self.at(self.now + delay, action)
+    def after(self, delay: float, action: Callable[..., None], *args: Any) -> None:
+        self.at(self.now + delay, action, *args)
 
     def step(self) -> bool:
         if not self._queue:
             return False
-        self.now, _, action = heapq.heappop(self._queue)
+        self.now, _, action, args = heapq.heappop(self._queue)
         self.events += 1
-        action()
+        action(*args)
         return True
 
     def next_time(self) -> float | None:
@@ -127,33 +120,33 @@ class Cluster:
         self.on_apply = on_apply
         for i in self.ids:
             self._start(i)
+        self.loop.after(tick_ms, self._tick_all)
 
     # -- node lifecycle -------------------------------------------------------------------
     def _start(self, i: int) -> None:
         self._incarnation[i] += 1
-        inc = self._incarnation[i]
-        node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + inc)
+        node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + self._incarnation[i])
         self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng)
         self._applied[i] = []  # the state machine is volatile: it is rebuilt by re-applying
         if self.checker:
             self.checker.restarted(i)
-        phase = self.rng.uniform(0, self.tick_ms)
-        self.loop.after(phase, lambda: self._tick(i, inc))
         self._process(i)
 
-    def _tick(self, i: int, inc: int) -> None:
-        node = self.nodes.get(i)
-        if node is None or self._incarnation[i] != inc:
-            return
-        node.tick()
-        self._process(i)
-        self.loop.after(self.tick_ms, lambda: self._tick(i, inc))
+    def _tick_all(self) -> None:
+        """One clock tick for every live node, in id order (one event, not n)."""
+        for i in self.ids:
+            node = self.nodes.get(i)
+            if node is not None:
+                node.tick()
+                if node.has_ready():
+                    self._process(i)
+        self.loop.after(self.tick_ms, self._tick_all)
 
     def _deliver(self, m: Message) -> None:
         node = self.nodes.get(m.to)
         if node is None:
             return
-        self.delivered[m.type.value] += 1
+        self.delivered[m.type] += 1
         node.step(m)
         self._process(m.to)
 
@@ -161,12 +154,15 @@ class Cluster:
         """Handle every Ready: persist, then send, then apply, then advance."""
         node = self.nodes[i]
         assert node is not None
+        changed = False
         while (rd := node.ready()) is not None:
-            self.storage[i].save(rd.hard_state, rd.entries)
+            if rd.hard_state is not None or rd.entries or rd.committed:
+                changed = True
+                self.storage[i].save(rd.hard_state, rd.entries)
             for m in rd.messages:
-                self.sent[m.type.value] += 1
+                self.sent[m.type] += 1  # StrEnum: counts are looked up by "MsgApp" too
                 for d in self.network.delays(self.rng, m.frm, m.to):
-                    self.loop.after(d, lambda m=m: self._deliver(m))
+                    self.loop.after(d, self._deliver, m)
             for e in rd.committed:
                 self._applied[i].append(e)
                 if self.checker:
@@ -174,7 +170,9 @@ class Cluster:
                 if self.on_apply:
                     self.on_apply(i, e)
             node.advance(rd)
-        if self.checker:
+        # Without state in a Ready nothing persistent changed (at most a leader stepped
+        # down, or messages went out), so there is nothing new for the invariants to see.
+        if self.checker and (changed or i not in self.checker.nodes):
             hs = self.storage[i].initial_state()
             self.checker.check(self.loop.now, node, hs.term, hs.vote)
 
@@ -313,5 +311,5 @@ class Cluster:
 
     @property
     def messages(self) -> Counter[str]:
-        """Messages sent, by type (MsgApp, MsgVote, ...)."""
-        return self.sent
+        """Messages sent, by type name ("MsgApp", "MsgVote", ...)."""
+        return Counter({k.value if hasattr(k, "value") else k: v for k, v in self.sent.items()})

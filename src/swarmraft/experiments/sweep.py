@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from swarmraft import __version__
+from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
 from swarmraft.experiments.config import ConfigError, SweepConfig
 from swarmraft.experiments.executors import make_executor
@@ -127,6 +128,7 @@ def run_sweep(
     pending: dict[tuple[int, int], dict[int, dict]] = {c: {} for c in todo}
     executor_name = "none (all cells reused)"
     if tasks:
+        warm_up()
         with make_executor(workers, scheduler) as ex:
             executor_name = ex.name
             for (n, f, ci), result in ex.run(tasks):

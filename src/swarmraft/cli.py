@@ -256,9 +256,25 @@ def sweep(
     if result.reused:
         console.print(f"reused {len(result.reused)} finished cells from {out}")
     console.print(_summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
+    if line := _calibration_line(out):
+        console.print(line)
     console.print(f"done in {result.seconds:.1f} s on {result.executor}")
     for p in result.paths:
         console.print(f"  wrote {p}")
+
+
+def _calibration_line(out: Path) -> str | None:
+    """The calibrated thresholds of a results folder, in one line (None if none ran)."""
+    cal = json.loads((Path(out) / "run.json").read_text()).get("calibration", {})
+    if not cal:
+        return None
+    taus = [c["tau"] for c in cal.values()]
+    eps = [c["epsilon"] for c in cal.values()]
+    return (
+        f"thresholds calibrated from honest runs (paper III.E, mu + 3 sigma) for n = "
+        f"{', '.join(sorted(cal, key=int))}: tau {min(taus):.2f}-{max(taus):.2f} m, "
+        f"epsilon {min(eps):.2f}-{max(eps):.2f} m"
+    )
 
 
 def _load_results(results: Path) -> tuple[dict, dict, dict]:
@@ -442,6 +458,8 @@ def demo(out, trials, workers) -> None:
                 f"({sum(r['ok'] for r in rows)}/{len(rows)} cells within 3 standard errors); "
                 f"`swarmraft check {folder}` prints the table"
             )
+        if line := _calibration_line(folder):
+            console.print(line)
         written += result.paths + draw_figures("all", folder)
         console.print(f"{preset} done in {result.seconds:.1f} s on {result.executor}")
     console.rule("[bold]written[/]")

@@ -127,7 +127,12 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
     ax.set_xticks(pos, [f"({a},{b})" for a, b in keys])
     ax.set_xlabel("(n, f)")
     ax.set_ylabel(f"per-trial mean error of attacked drones, m (log; floor {floor:g})")
-    ax.legend([b1["boxes"][0], b2["boxes"][0]], ["reported", "verified"], loc="center right")
+    ax.legend(
+        [b1["boxes"][0], b2["boxes"][0]],
+        ["reported", "verified"],
+        loc="upper left",
+        bbox_to_anchor=(1.0, 1.0),
+    )
     ax.grid(True, axis="y", which="major", ls=":", alpha=0.6)
     ax.set_title(f"Error distribution per trial{title and chr(10) + title}", fontsize=10)
     return _save(fig, path)

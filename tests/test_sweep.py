@@ -106,3 +106,11 @@ def test_bad_config_is_one_line_naming_the_field(kw, match):
     with pytest.raises(ConfigError, match=match) as info:
         build_config("reference", **kw)
     assert "\n" not in str(info.value)
+
+
+def test_formation_geometry(tmp_path):
+    cfg = small("realistic", n=(9,), f=(2,), trials=50, calibration_trials=50, geometry="formation")
+    res = run_sweep(cfg, tmp_path, workers=1)
+    assert res.cells["trials"][0] == 50
+    with pytest.raises(ConfigError, match="^geometry: "):
+        small(geometry="sphere")

@@ -13,7 +13,7 @@ import numpy as np
 
 from swarmraft.estimation import SnapshotBatch, verify_batch
 from swarmraft.experiments.config import SweepConfig
-from swarmraft.world import choose_attackers, uniform_cube
+from swarmraft.world import choose_attackers, formation, uniform_cube
 
 TRIAL_COLUMNS = (
     "n",
@@ -48,7 +48,10 @@ def chunk_seed(seed: int, n: int, f: int, chunk: int) -> np.random.SeedSequence:
 
 def draw(config: SweepConfig, rng: np.random.Generator, trials: int, n: int, f: int) -> Draw:
     """Sample the world for T trials: truth, honest reports, ranges, then the attack."""
-    truth = uniform_cube(rng, trials, n, config.area_size)
+    if config.geometry == "cube":
+        truth = uniform_cube(rng, trials, n, config.area_size)
+    else:
+        truth = formation(rng, trials, n, config.spacing, config.jitter)
     attackers = choose_attackers(rng, trials, n, f)
     reported = truth.copy()
     if config.gnss is not None:

@@ -160,10 +160,13 @@ def main() -> None:
     """
 
 
+PRESET = click.Choice(["reference", "realistic"])
+
+
 @main.command()
 @click.option(
     "--preset",
-    type=click.Choice(["reference", "realistic"]),
+    type=PRESET,
     default="reference",
     show_default=True,
     help="reference: the paper's code; realistic: FACTS.md noise.",
@@ -386,7 +389,7 @@ def check(results) -> None:
 @main.command()
 @click.option(
     "--preset",
-    type=click.Choice(["reference", "realistic"]),
+    type=PRESET,
     default="realistic",
     show_default=True,
 )

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from swarmraft.estimation.paper import PaperParams, anchor_distances, recover
+from swarmraft.estimation.paper import PaperParams, anchor_distances, recover, report_distances
 from swarmraft.estimation.snapshot import SnapshotBatch
 
 
@@ -47,10 +47,8 @@ def three_sigma(values: np.ndarray) -> tuple[float, float, float]:
 
 def pair_residuals(reported: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """| ||z_A - z_B|| - d_AB | for every measured ordered pair, flattened."""
-    diff = reported[:, :, None, :] - reported[:, None, :, :]
-    dhat = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
     off = ~np.eye(reported.shape[1], dtype=bool)
-    e = np.abs(dhat - ranges)[:, off]
+    e = np.abs(report_distances(reported) - ranges)[:, off]
     return e[~np.isnan(e)]
 
 

@@ -41,11 +41,16 @@ class PaperParams(BaseModel):
     min_anchors: int = Field(3, ge=1)
 
 
+def report_distances(reported: np.ndarray) -> np.ndarray:
+    """||z_A - z_B|| for every pair of reports: (T, n, 3) -> (T, n, n)."""
+    diff = reported[:, :, None, :] - reported[:, None, :, :]
+    return np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+
+
 def pairwise_votes(reported: np.ndarray, ranges: np.ndarray, tau: float) -> np.ndarray:
     """Stage 1 vote sums (T, n): +1 per measured neighbour B with
     | ||z_A - z_B|| - ranges[A, B] | < tau, -1 otherwise; unmeasured pairs abstain."""
-    diff = reported[:, :, None, :] - reported[:, None, :, :]
-    dhat = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    dhat = report_distances(reported)
     n = reported.shape[1]
     measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
     with np.errstate(invalid="ignore"):

@@ -1,6 +1,9 @@
 """The leader's verification as pure functions on arrays: detectors, multilateration,
 threshold calibration. Nothing here knows about Raft or networks."""
 
+from swarmraft.estimation import clique as _clique  # noqa: F401  (registers "clique")
+from swarmraft.estimation import fde as _fde  # noqa: F401  (registers "fde")
+from swarmraft.estimation import gnc as _gnc  # noqa: F401  (registers "joint")
 from swarmraft.estimation import paper as _paper  # noqa: F401  (registers "paper")
 from swarmraft.estimation.paper import PaperParams
 from swarmraft.estimation.registry import (

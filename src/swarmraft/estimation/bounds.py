@@ -1,0 +1,124 @@
+"""Cramér-Rao bounds on position error (FACTS.md, "Limits from theory").
+
+- `anchor_crb`: one drone located from ranges to K anchors, at known positions or with a
+  GNSS covariance S_k each: J = sum_k u_k u_k^T / (sigma_d^2 + u_k^T S_k u_k) (+ P_prior^-1).
+- `swarm_crb`: the whole swarm with the faulty set known: GNSS information of the honest
+  drones, optional INS priors, and one (1/sigma_d^2) u u^T term per measured range coupling
+  the two drones; each drone's bound is its 3x3 block of J^-1.
+
+RMSE >= sqrt(trace(bound)). Everything is batched over a leading trial axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CHI2_3DOF_999 = 16.266236196238129  # chi-square, 3 dof, 0.999 quantile (catastrophic failure)
+
+
+def gnss_covariance(sigma_h: float, sigma_v: float) -> np.ndarray:
+    """Per-axis GNSS covariance diag(sigma_h^2, sigma_h^2, sigma_v^2)."""
+    return np.diag([sigma_h**2, sigma_h**2, sigma_v**2])
+
+
+def _unit(d: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(d, axis=-1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
+def anchor_crb(
+    x: np.ndarray,
+    anchors: np.ndarray,
+    range_sigma: float,
+    mask: np.ndarray | None = None,
+    anchor_cov: np.ndarray | None = None,
+    prior_cov: np.ndarray | None = None,
+) -> np.ndarray:
+    """Bound (B, 3, 3) for drones at x (B, 3) ranged from anchors (B, K, 3); ``anchor_cov``
+    (3, 3) or (B, K, 3, 3) for uncertain anchors; ``prior_cov`` (3, 3) or (B, 3, 3) for an
+    INS prior. Returns inf where the geometry gives no bound (fewer than 3 independent
+    directions and no prior)."""
+    x, anchors = np.asarray(x, float), np.asarray(anchors, float)
+    B, K, _ = anchors.shape
+    mask = np.ones((B, K), bool) if mask is None else np.asarray(mask, bool)
+    u = _unit(x[:, None, :] - anchors)
+    var = np.full((B, K), float(range_sigma) ** 2)
+    if anchor_cov is not None:
+        S = np.broadcast_to(np.asarray(anchor_cov, float), (B, K, 3, 3))
+        var = var + np.einsum("bki,bkij,bkj->bk", u, S, u)
+    w = np.where(mask, 1.0 / np.where(var > 0, var, np.inf), 0.0)
+    if np.any(mask & (var == 0)):
+        raise ValueError("anchor_crb: zero noise (exact ranges and anchors) has no finite bound")
+    J = np.einsum("bk,bki,bkj->bij", w, u, u)
+    if prior_cov is not None:
+        J = J + np.linalg.inv(np.broadcast_to(np.asarray(prior_cov, float), (B, 3, 3)))
+    return _safe_inv(J)
+
+
+def _safe_inv(J: np.ndarray) -> np.ndarray:
+    """Inverse of each information matrix; inf where it is singular."""
+    out = np.full_like(J, np.inf)
+    cond = np.linalg.cond(J)
+    ok = np.isfinite(cond) & (cond < 1e12)
+    if ok.any():
+        out[ok] = np.linalg.inv(J[ok])
+    return out
+
+
+def swarm_information(
+    truth: np.ndarray,
+    trusted: np.ndarray,
+    measured: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    ins_cov: np.ndarray | None = None,
+) -> np.ndarray:
+    """Fisher information (T, 3n, 3n) of all positions: GNSS of ``trusted`` drones (T, n),
+    one term per measured ordered pair (``measured`` (T, n, n): d_ij and d_ji are two
+    independent measurements), INS priors (3, 3) or (T, n, 3, 3) if given."""
+    truth = np.asarray(truth, float)
+    T, n, _ = truth.shape
+    if range_sigma <= 0:
+        raise ValueError("swarm_crb: range_sigma must be > 0")
+    G = np.linalg.inv(np.asarray(gnss_cov, float))
+    J = np.zeros((T, n, 3, n, 3))
+    idx = np.arange(n)
+    J[:, idx, :, idx, :] += np.where(np.asarray(trusted, bool)[..., None, None], G, 0.0).transpose(1, 0, 2, 3)
+    if ins_cov is not None:
+        P = np.linalg.inv(np.broadcast_to(np.asarray(ins_cov, float), (T, n, 3, 3)))
+        J[:, idx, :, idx, :] += P.transpose(1, 0, 2, 3)
+    u = _unit(truth[:, :, None, :] - truth[:, None, :, :])  # (T, n, n, 3)
+    m = np.asarray(measured, bool) & ~np.eye(n, dtype=bool)
+    # each ordered measurement (i, j) adds w u u^T to blocks ii, jj and -w u u^T to ij, ji;
+    # the two directions share u u^T, so count them together
+    cnt = (m.astype(float) + np.swapaxes(m, 1, 2).astype(float)) / range_sigma**2  # symmetric
+    uu = np.einsum("tij,tijk,tijl->tijkl", cnt, u, u)
+    J -= uu.transpose(0, 1, 3, 2, 4) * 1.0  # off-diagonal blocks: -w u u^T
+    J[:, idx, :, idx, :] += uu.sum(axis=2).transpose(1, 0, 2, 3)
+    return J.reshape(T, 3 * n, 3 * n)
+
+
+def swarm_crb(
+    truth: np.ndarray,
+    trusted: np.ndarray,
+    measured: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    ins_cov: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-drone bound (T, n, 3, 3): the 3x3 blocks of the inverse swarm information."""
+    J = swarm_information(truth, trusted, measured, gnss_cov, range_sigma, ins_cov)
+    T, N, _ = J.shape
+    n = N // 3
+    C = _safe_inv(J).reshape(T, n, 3, n, 3)
+    idx = np.arange(n)
+    return C[:, idx, :, idx, :].transpose(1, 0, 2, 3)
+
+
+def error_statistics(err: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Squared error and NEES e^T C^-1 e for errors (..., 3) against bounds (..., 3, 3)."""
+    sq = np.einsum("...i,...i->...", err, err)
+    finite = np.isfinite(bound).all(axis=(-1, -2))
+    C = np.where(finite[..., None, None], bound, np.eye(3))
+    nees = np.einsum("...i,...i->...", err, np.linalg.solve(C, err[..., None])[..., 0])
+    return sq, np.where(finite, nees, np.nan)

@@ -1,0 +1,137 @@
+"""The `clique` detector: the largest set of mutually consistent drones.
+
+Two drones are consistent when the distance between their reports agrees with the range
+between them within ``k`` sigma, where sigma combines both GNSS errors along the line of
+sight and the range noise, and (when both directions are measured) their two ranges d_ij and
+d_ji agree within ``k`` sigma: a drone that tampers with its own ranges disagrees with the
+honest drone's measurement of the same distance. The honest drones form a clique of this
+consistency graph; the detector takes the maximum clique (networkx) as trusted and estimates
+every position jointly from it (`joint_estimate`).
+
+The pairwise test is weak against GNSS noise on both ends (a spoof of a few sigma can be
+consistent with most honest drones), so the cliques are candidates, each checked by the
+residual tests of a joint estimate that trusts it (`passes_residual_tests`): a spoofed report
+inside a candidate shows up as a large GNSS residual there.
+
+Identifiability (FACTS.md): f colluding attackers moving rigidly about up to 3 honest pivot
+drones form a consistent clique of f + 3 in 3-D, so the honest clique is the unique maximum
+only when n >= 2f + 4. The candidates are the maximal cliques that leave at most ``f_max``
+drones out (the number of attackers the swarm is meant to tolerate; by default an honest
+majority, (n - 1) // 2). If two or more candidates pass the residual tests the status is
+``unidentifiable``: only the drones outside every plausible candidate are flagged, and the
+positions are estimated from the drones inside all of them (if at least four; otherwise the
+reports are kept). If none passes, the largest candidate with the smallest residual is taken;
+if there is no candidate, the status is ``unidentifiable``. With ``f_max`` = f, n >= 2f + 4
+identifies f colluders exactly; with the default a reflection about three pivots (which
+needs one more honest drone to rule out) is reported unidentifiable rather than guessed.
+"""
+
+from __future__ import annotations
+
+import networkx as nx
+import numpy as np
+from pydantic import Field
+
+from swarmraft.estimation.joint import (
+    joint_estimate,
+    passes_residual_tests,
+    residual_statistics,
+    trusted_estimate,
+)
+from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.paper import report_distances
+from swarmraft.estimation.registry import register
+from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+
+class CliqueParams(NoiseParams):
+    k: float = Field(4.0, gt=0, description="consistency threshold, sigmas")
+    tol: float = Field(0.01, ge=0, description="absolute floor on the threshold, m")
+    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual test")
+    f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
+
+
+def consistency_graph(
+    reported: np.ndarray, ranges: np.ndarray, noise: NoiseModel, k: float, tol: float = 0.0
+) -> np.ndarray:
+    """Adjacency (T, n, n) of the pairwise consistency graph."""
+    T, n, _ = reported.shape
+    dhat = report_distances(reported)
+    diff = reported[:, :, None, :] - reported[:, None, :, :]
+    u = diff / np.where(dhat > 0, dhat, 1.0)[..., None]
+    fwd, back = ranges, np.swapaxes(ranges, 1, 2)
+    both = ~np.isnan(fwd) & ~np.isnan(back)
+    cnt = (~np.isnan(fwd)).astype(float) + (~np.isnan(back))
+    dbar = np.where(cnt > 0, (np.nan_to_num(fwd) + np.nan_to_num(back)) / np.maximum(cnt, 1), np.nan)
+    s_d2 = noise.range_sigma**2
+    var = 2 * noise.los_variance(u) + s_d2 / np.maximum(cnt, 1)
+    with np.errstate(invalid="ignore"):
+        ok = np.abs(dhat - dbar) <= np.maximum(k * np.sqrt(var), tol)
+        agree = np.abs(fwd - back) <= np.maximum(k * np.sqrt(2 * s_d2), tol)
+    ok &= np.where(both, agree, True) & (cnt > 0)
+    ok[:, np.arange(n), np.arange(n)] = False
+    return ok
+
+
+def candidate_sets(adj: np.ndarray, f_max: int) -> list[frozenset[int]]:
+    """The sets that could be the honest drones of one graph: the maximal cliques that leave
+    at most ``f_max`` drones out, largest first."""
+    n = adj.shape[0]
+    g = nx.from_numpy_array(adj.astype(np.int8))
+    cliques = sorted((frozenset(c) for c in nx.find_cliques(g)), key=len, reverse=True)
+    return [c for c in cliques if n - len(c) <= f_max]
+
+
+@register("clique", CliqueParams, "maximum clique of the pairwise consistency graph + joint estimate")
+def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
+    reported = np.asarray(batch.reported, float)
+    ranges = np.asarray(batch.ranges, float)
+    T, n, _ = reported.shape
+    noise = NoiseModel.of(batch, p, "clique")
+    adj = consistency_graph(reported, ranges, noise, p.k, p.tol)
+    f_max = (n - 1) // 2 if p.f_max is None else p.f_max
+    cands = [candidate_sets(adj[t], f_max) for t in range(T)]
+    # Test every candidate at once: does a joint estimate trusting it explain the data?
+    owner = np.array([t for t, cs in enumerate(cands) for _ in cs])
+    masks = np.zeros((owner.size, n), dtype=bool)
+    for k, c in enumerate(c for cs in cands for c in cs):
+        masks[k, list(c)] = True
+    x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
+    passed = passes_residual_tests(x, reported[owner], ranges[owner], masks, noise, p.p_fa)
+    total = residual_statistics(x, reported[owner], ranges[owner], masks, noise)[2]
+    trusted = np.zeros((T, n), dtype=bool)
+    suspects = np.zeros((T, n), dtype=bool)
+    status = np.full(T, "ok", dtype=object)
+    k = 0
+    for t, cs in enumerate(cands):
+        ks = np.arange(k, k + len(cs))
+        k += len(cs)
+        plausible = [j for j in ks if passed[j]]
+        if not cs:  # more than f_max drones outside every clique
+            status[t] = "unidentifiable"
+            continue
+        if len(plausible) >= 2:
+            status[t] = "unidentifiable"
+            common = np.logical_and.reduce(masks[plausible])
+            suspects[t] = ~np.logical_or.reduce(masks[plausible])
+            if common.sum() >= 4:  # estimate from what every explanation trusts
+                trusted[t] = common
+            continue
+        top = [j for j in ks if masks[j].sum() == len(cs[0])]
+        pick = plausible[0] if plausible else min(top, key=lambda j: total[j])
+        trusted[t] = masks[pick]
+        suspects[t] = ~trusted[t]
+    positions = reported.copy()
+    use = trusted.any(axis=1)
+    if use.any():
+        positions[use], fit_status = trusted_estimate(
+            reported[use], ranges[use], trusted[use], noise.gnss_cov, noise.range_sigma
+        )
+        status[use] = np.where(status[use] == "ok", fit_status, status[use])
+    faulty = suspects
+    return VerdictBatch(
+        positions=positions,
+        faulty=faulty,
+        status=status.astype(str),
+        diagnostics={"degree": adj.sum(axis=2), "trusted": trusted},
+    )

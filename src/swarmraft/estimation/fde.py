@@ -1,0 +1,54 @@
+"""The `fde` detector: fault detection and exclusion as in GNSS receiver integrity monitoring
+(RAIM). Estimate all positions jointly from every trusted report and range; if the weighted
+sum of squared residuals fails a chi-square test at false-alarm probability ``p_fa``, or the
+largest GNSS residual block fails its own 3-dof test at ``p_fa / n``, exclude the drone with
+the largest residual contribution (its GNSS report and its own ranges) and repeat, until the
+tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from swarmraft.estimation.joint import (
+    joint_estimate,
+    passes_residual_tests,
+    residual_statistics,
+    trusted_estimate,
+)
+from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.registry import register
+from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+
+class FDEParams(NoiseParams):
+    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the test")
+    min_trusted: int = Field(4, ge=1, description="stop excluding below this many drones")
+    f_max: int | None = Field(None, ge=0, description="exclude at most this many; None: (n - 1) // 2")
+
+
+@register("fde", FDEParams, "chi-square residual test with greedy exclusion (RAIM-style FDE)")
+def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
+    reported = np.asarray(batch.reported, float)
+    ranges = np.asarray(batch.ranges, float)
+    T, n, _ = reported.shape
+    noise = NoiseModel.of(batch, p, "fde")
+    trusted = np.ones((T, n), dtype=bool)
+    active = np.arange(T)
+    stat = np.zeros(T)
+    while active.size:
+        tr = trusted[active]
+        x = joint_estimate(reported[active], ranges[active], tr, noise.gnss_cov, noise.range_sigma)
+        per, _, total, dof = residual_statistics(x, reported[active], ranges[active], tr, noise)
+        stat[active] = total
+        failed = ~passes_residual_tests(x, reported[active], ranges[active], tr, noise, p.p_fa)
+        f_max = (n - 1) // 2 if p.f_max is None else p.f_max
+        can = (tr.sum(axis=1) > p.min_trusted) & ((~tr).sum(axis=1) < f_max)
+        go = failed & can
+        worst = np.argmax(np.where(tr, per, -np.inf), axis=1)
+        trusted[active[go], worst[go]] = False
+        active = active[go]
+    positions, status = trusted_estimate(reported, ranges, trusted, noise.gnss_cov, noise.range_sigma)
+    return VerdictBatch(
+        positions=positions, faulty=~trusted, status=status, diagnostics={"chi2": stat, "trusted": trusted}
+    )

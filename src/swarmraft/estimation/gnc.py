@@ -1,0 +1,132 @@
+"""The `joint` detector: a robust joint estimate of every position from all GNSS reports and
+all ranges by graduated non-convexity (GNC) with the Geman-McClure loss (Yang, Antonante,
+Tzoumas, Carlone, "Graduated Non-Convexity for Robust Spatial Perception", RA-L 2020). The
+weights start nearly quadratic and are tightened step by step, so spoofed reports and tampered
+ranges lose their weight without an explicit search over subsets. Drones whose GNSS residual
+stays beyond the chi-square 3-dof 0.999 quantile (or most of whose own ranges are outliers)
+are flagged, flagged drones whose reports agree with the others' ranges are re-included, and
+all positions are re-estimated with the rest trusted, which also brings the honest drones
+below their raw GNSS error. Where that answer fails the residual tests or flags more than
+``f_max`` drones (GNC settled on a wrong partition, about 1 % of trials with 8 of 17 drones
+spoofed), the clique detector's answer is used if it passes them."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from swarmraft.estimation.bounds import CHI2_3DOF_999
+from swarmraft.estimation.clique import CliqueParams, clique_detector
+from swarmraft.estimation.joint import (
+    joint_estimate,
+    passes_residual_tests,
+    residuals,
+    trusted_estimate,
+    weighted_gauss_newton,
+)
+from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.registry import register
+from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+
+def geman_mcclure_weights(r2: np.ndarray, c2: float, mu: float) -> np.ndarray:
+    """GNC Geman-McClure weights for squared whitened residuals r2 (Yang et al. 2020)."""
+    return (mu * c2 / (r2 + mu * c2)) ** 2
+
+
+def gnc_estimate(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    c_gnss: float = 4.0,
+    c_range: float = 4.0,
+    mu_factor: float = 1.4,
+    max_outer: int = 60,
+    inner: int = 2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robust joint estimate by graduated non-convexity: all GNSS reports and all ranges,
+    Geman-McClure weights relaxed from nearly quadratic (large mu) to the true robust loss
+    (mu = 1). ``c_gnss`` is the inlier bound on the whitened 3-D GNSS residual norm,
+    ``c_range`` on the whitened range residual. Returns positions (T, n, 3), GNSS weights
+    (T, n) and range weights (T, n, n)."""
+    T, n, _ = reported.shape
+    G_half = np.linalg.cholesky(np.linalg.inv(np.asarray(gnss_cov, float))).T
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    gnss_w = np.ones((T, n))
+    range_w = meas.astype(float)
+    x = weighted_gauss_newton(
+        reported, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters=inner + 2
+    )
+    rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
+    r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
+    mu = np.maximum(2 * max(r2g.max() / c_gnss**2, r2r.max() / c_range**2), 1.0)
+    for _ in range(max_outer):
+        gnss_w = geman_mcclure_weights(r2g, c_gnss**2, mu)
+        range_w = np.where(meas, geman_mcclure_weights(r2r, c_range**2, mu), 0.0)
+        x = weighted_gauss_newton(x, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters=inner)
+        rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
+        r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
+        if mu <= 1.0:
+            break
+        mu = max(mu / mu_factor, 1.0)
+    gnss_w = geman_mcclure_weights(r2g, c_gnss**2, 1.0)
+    range_w = np.where(meas, geman_mcclure_weights(r2r, c_range**2, 1.0), 0.0)
+    return x, gnss_w, range_w
+
+
+class JointParams(NoiseParams):
+    c_gnss: float = Field(4.0, gt=0, description="GNC inlier bound, whitened GNSS residual")
+    c_range: float = Field(4.0, gt=0, description="GNC inlier bound, whitened range residual")
+    flag_chi2: float = Field(CHI2_3DOF_999, gt=0, description="flag GNSS residual^2 above")
+    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual test")
+    f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
+
+
+@register("joint", JointParams, "robust joint estimate (GNC, Geman-McClure) of all positions")
+def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
+    reported = np.asarray(batch.reported, float)
+    ranges = np.asarray(batch.ranges, float)
+    n = reported.shape[1]
+    noise = NoiseModel.of(batch, p, "joint")
+    x, gnss_w, range_w = gnc_estimate(
+        reported, ranges, noise.gnss_cov, noise.range_sigma, p.c_gnss, p.c_range
+    )
+    G_half = np.linalg.cholesky(np.linalg.inv(noise.gnss_cov)).T
+    rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)
+    own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    bad_ranges = ((range_w < 0.5) & own).sum(axis=2) > 0.5 * own.sum(axis=2)
+    faulty = (np.einsum("tni,tni->tn", rg, rg) > p.flag_chi2) | bad_ranges
+    # Re-inclusion: estimate with the flagged drones distrusted; a flagged drone whose report
+    # agrees with where the others' ranges put it was flagged wrongly (GNC can settle on a
+    # wrong partition when many reports are spoofed).
+    for _ in range(2):
+        x = joint_estimate(reported, ranges, ~faulty, noise.gnss_cov, noise.range_sigma)
+        rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)
+        back = faulty & ~bad_ranges & (np.einsum("tni,tni->tn", rg, rg) <= p.flag_chi2)
+        if not back.any():
+            break
+        faulty &= ~back
+    positions, status = trusted_estimate(reported, ranges, ~faulty, noise.gnss_cov, noise.range_sigma)
+    # GNC can settle on a wrong partition; where its answer fails the residual tests, take the
+    # clique detector's answer for that trial if that one passes them.
+    f_max = (n - 1) // 2 if p.f_max is None else p.f_max
+    bad = ~passes_residual_tests(positions, reported, ranges, ~faulty, noise, p.p_fa)
+    bad |= faulty.sum(axis=1) > f_max
+    if bad.any():
+        sub = SnapshotBatch(reported[bad], ranges[bad], batch.gnss_sigma, batch.range_sigma)
+        alt = clique_detector(
+            sub, CliqueParams(**p.model_dump(include=set(NoiseParams.model_fields)), p_fa=p.p_fa)
+        )
+        alt_ok = (alt.status == "ok") & passes_residual_tests(
+            alt.positions, reported[bad], ranges[bad], ~alt.faulty, noise, p.p_fa
+        )
+        idx = np.flatnonzero(bad)[alt_ok]
+        positions[idx], faulty[idx], status[idx] = (
+            alt.positions[alt_ok],
+            alt.faulty[alt_ok],
+            alt.status[alt_ok],
+        )
+    return VerdictBatch(
+        positions=positions, faulty=faulty, status=status, diagnostics={"gnss_weight": gnss_w}
+    )

@@ -1,0 +1,166 @@
+"""Joint estimation of all drone positions from GNSS reports and every measured range.
+
+The state is the 3n positions. Residuals: each trusted GNSS report, whitened by its
+covariance, and each measured range (drone i's measurement d_ij of drone j), divided by the
+range sigma. `weighted_gauss_newton` minimises the weighted sum of squares with a
+Levenberg-Marquardt step and an analytic Jacobian, batched over trials; `joint_estimate` uses
+it with a known trusted set (`trusted_estimate` adds the geometry check); `swarmraft.estimation.gnc`
+uses it with robust weights.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.trust_region import linear_multilateration
+
+
+def _geometry(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    u = diff / np.where(dist > 0, dist, 1.0)[..., None]
+    return dist, u
+
+
+def residuals(
+    x: np.ndarray, reported: np.ndarray, ranges: np.ndarray, G_half: np.ndarray, range_sigma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened GNSS residuals (T, n, 3) and range residuals (T, n, n) at positions x."""
+    rg = np.einsum("ij,tnj->tni", G_half, x - reported)
+    dist, _ = _geometry(x)
+    rr = np.where(np.isnan(ranges), 0.0, (dist - np.nan_to_num(ranges)) / range_sigma)
+    return rg, rr
+
+
+def weighted_gauss_newton(
+    x0: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    gnss_w: np.ndarray,
+    range_w: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    iters: int = 8,
+    damping: float = 1e-9,
+    tol: float = 1e-9,
+) -> np.ndarray:
+    """Minimise sum_i gnss_w_i |G^1/2 (x_i - z_i)|^2 + sum_ij range_w_ij ((|x_i - x_j| - d_ij)/s)^2
+    over x (T, n, 3), starting at x0. Unmeasured ranges must have zero weight."""
+    x = np.array(x0, dtype=float, copy=True)
+    T, n, _ = x.shape
+    G = np.linalg.inv(np.asarray(gnss_cov, float))
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    w_r = np.where(meas, range_w, 0.0) / range_sigma**2
+    d = np.nan_to_num(ranges)
+    idx = np.arange(n)
+    eye = np.eye(3 * n)
+    for _ in range(iters):
+        dist, u = _geometry(x)
+        r = np.where(meas, dist - d, 0.0)
+        # gradient: GNSS g_i = w_i G (x_i - z_i); ranges: d r_ij / d x_i = u_ij, / d x_j = -u_ij
+        g = np.einsum("tn,ij,tnj->tni", gnss_w, G, x - reported)
+        wr = w_r * r
+        g += np.einsum("tij,tijk->tik", wr, u) - np.einsum("tij,tijk->tjk", wr, u)
+        H = np.zeros((T, n, 3, n, 3))
+        H[:, idx, :, idx, :] += (gnss_w[..., None, None] * G).transpose(1, 0, 2, 3)
+        ws = w_r + np.swapaxes(w_r, 1, 2)  # both directions of a pair share u u^T
+        uu = np.einsum("tij,tijk,tijl->tijkl", ws, u, u)
+        H -= uu.transpose(0, 1, 3, 2, 4)
+        H[:, idx, :, idx, :] += uu.sum(axis=2).transpose(1, 0, 2, 3)
+        H = H.reshape(T, 3 * n, 3 * n)
+        scale = np.maximum(np.abs(np.diagonal(H, axis1=1, axis2=2)).max(axis=1), 1.0)
+        step = np.linalg.solve(H + (damping * scale)[:, None, None] * eye, -g.reshape(T, 3 * n, 1))
+        x += step.reshape(T, n, 3)
+        if np.abs(step).max() < tol:
+            break
+    return x
+
+
+def initial_positions(reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """Start for the joint solve: trusted drones at their reports; the others by closed-form
+    multilateration from the trusted ones they have ranges with (their report if fewer than
+    4 such anchors)."""
+    x = np.array(reported, dtype=float, copy=True)
+    T, n, _ = x.shape
+    towards = np.swapaxes(ranges, 1, 2)  # anchors' own measurements d_jA first
+    dists = np.where(np.isnan(towards), ranges, towards)
+    t_idx, a_idx = np.nonzero(~trusted)
+    if not t_idx.size:
+        return x
+    mask = trusted[t_idx] & ~np.isnan(dists[t_idx, a_idx]) & (np.arange(n)[None, :] != a_idx[:, None])
+    ok = mask.sum(axis=1) >= 4
+    if ok.any():
+        est = linear_multilateration(reported[t_idx[ok]], dists[t_idx[ok], a_idx[ok]], mask[ok])
+        x[t_idx[ok], a_idx[ok]] = est
+    return x
+
+
+def joint_estimate(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    iters: int = 8,
+) -> np.ndarray:
+    """All positions (T, n, 3) with the trusted set known: GNSS of trusted drones, ranges
+    measured by trusted drones (an untrusted drone's own ranges may be tampered), and ranges
+    measured by others to the untrusted ones."""
+    x0 = initial_positions(reported, ranges, trusted)
+    gnss_w = trusted.astype(float)
+    range_w = np.broadcast_to(trusted[:, :, None], ranges.shape).astype(float)
+    return weighted_gauss_newton(x0, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters)
+
+
+def anchor_counts(ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """For each drone, how many trusted other drones share a range with it (T, n)."""
+    n = ranges.shape[1]
+    linked = (~np.isnan(ranges) | ~np.isnan(np.swapaxes(ranges, 1, 2))) & ~np.eye(n, dtype=bool)
+    return (linked & trusted[:, None, :]).sum(axis=2)
+
+
+def trusted_estimate(
+    reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, gnss_cov: np.ndarray, range_sigma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint estimate with a decided trusted set, and the status per trial: ``insufficient``
+    when an untrusted drone has fewer than 4 trusted drones to range with (3 spheres leave a
+    mirror ambiguity, fewer a continuum); its report is then kept rather than guessed."""
+    positions = joint_estimate(reported, ranges, trusted, gnss_cov, range_sigma)
+    thin = ~trusted & (anchor_counts(ranges, trusted) < 4)
+    positions = np.where(thin[..., None], reported, positions)
+    return positions, np.where(thin.any(axis=1), "insufficient", "ok")
+
+
+def residual_statistics(
+    x: np.ndarray, reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, noise: NoiseModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-drone chi-square contributions (T, n) of trusted drones (GNSS block + own ranges),
+    the GNSS blocks alone (T, n), the total (T,) and its degrees of freedom (T,)."""
+    G_half = np.linalg.cholesky(np.linalg.inv(noise.gnss_cov)).T
+    rg, rr = residuals(x, reported, ranges, G_half, noise.range_sigma)
+    n = x.shape[1]
+    own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
+    gnss_q = np.where(trusted, np.einsum("tni,tni->tn", rg, rg), 0.0)
+    per = gnss_q + np.where(own, rr**2, 0.0).sum(axis=2)
+    dof = 3 * trusted.sum(axis=1) + own.sum(axis=(1, 2)) - 3 * n
+    return per, gnss_q, per.sum(axis=1), dof
+
+
+def passes_residual_tests(
+    x: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p_fa: float,
+) -> np.ndarray:
+    """Whether a joint estimate with this trusted set explains the data (T,): the global
+    chi-square test of all residuals at ``p_fa``, and the local 3-dof test of the worst
+    trusted GNSS report at ``p_fa / n`` (its power does not drown in the range residuals)."""
+    n = x.shape[1]
+    _, gnss_q, total, dof = residual_statistics(x, reported, ranges, trusted, noise)
+    local_ok = np.where(trusted, gnss_q, 0.0).max(axis=1) <= chi2.ppf(1 - p_fa / n, 3)
+    global_ok = (dof <= 0) | (total <= chi2.ppf(1 - p_fa, np.maximum(dof, 1)))
+    return local_ok & global_ok

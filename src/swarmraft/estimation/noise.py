@@ -1,0 +1,46 @@
+"""The noise model a statistical detector works with: GNSS covariance and range sigma, taken
+from the snapshot (or the detector's parameters), floored so that exact data (the reference
+preset) still gives finite weights."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from swarmraft.estimation.bounds import gnss_covariance
+from swarmraft.estimation.snapshot import SnapshotBatch
+
+
+class NoiseParams(BaseModel):
+    """Noise parameters shared by the statistical detectors. None: take it from the snapshot."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    gnss_sigma: tuple[float, float] | None = Field(None, description="(horizontal, vertical) m")
+    range_sigma: float | None = Field(None, ge=0, description="ranging sigma, m")
+    min_sigma: float = Field(1e-3, gt=0, description="floor for exact data, m")
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    gnss_cov: np.ndarray  # (3, 3)
+    range_sigma: float
+
+    @classmethod
+    def of(cls, batch: SnapshotBatch, p: NoiseParams, detector: str) -> NoiseModel:
+        gs = p.gnss_sigma if p.gnss_sigma is not None else batch.gnss_sigma
+        rs = p.range_sigma if p.range_sigma is not None else batch.range_sigma
+        if rs is None:
+            raise ValueError(
+                f"{detector}: needs the ranging noise: give the snapshot range_sigma or the "
+                "detector parameter range_sigma"
+            )
+        h, v = gs if gs is not None else (0.0, 0.0)  # no GNSS sigma: exact honest reports
+        floor = p.min_sigma
+        return cls(gnss_covariance(max(h, floor), max(v, floor)), max(float(rs), floor))
+
+    def los_variance(self, u: np.ndarray) -> np.ndarray:
+        """GNSS variance along unit vectors u (..., 3)."""
+        return np.einsum("...i,ij,...j->...", u, self.gnss_cov, u)

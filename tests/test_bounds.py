@@ -1,0 +1,82 @@
+"""Cramér-Rao bounds against Monte Carlo of an efficient estimator on easy geometry."""
+
+import numpy as np
+import pytest
+
+from swarmraft.estimation.bounds import (
+    CHI2_3DOF_999,
+    anchor_crb,
+    error_statistics,
+    gnss_covariance,
+    swarm_crb,
+)
+from swarmraft.estimation.joint import joint_estimate
+from swarmraft.estimation.trust_region import solve_ranges
+
+AXES = np.array([[50, 0, 0], [-50, 0, 0], [0, 50, 0], [0, -50, 0], [0, 0, 50], [0, 0, -50.0]])
+
+
+def test_anchor_bound_closed_form():
+    C = anchor_crb(np.zeros((1, 3)), AXES[None], 0.1)[0]
+    np.testing.assert_allclose(C, np.eye(3) * 0.1**2 / 2)  # sum u u^T = 2 I
+
+
+def test_anchor_bound_matches_monte_carlo_known_anchors():
+    rng = np.random.default_rng(1)
+    B, sigma = 4000, 0.2
+    x = np.array([5.0, -3.0, 2.0])
+    d = np.linalg.norm(x - AXES, axis=1) + rng.normal(0, sigma, (B, 6))
+    est = solve_ranges(
+        np.broadcast_to(AXES, (B, 6, 3)), d, np.ones((B, 6), bool), np.broadcast_to(x, (B, 3)), loss="linear"
+    ).x
+    emp = np.cov((est - x).T)
+    C = anchor_crb(x[None], AXES[None], sigma)[0]
+    np.testing.assert_allclose(np.trace(emp), np.trace(C), rtol=0.06)
+
+
+def test_anchor_bound_with_uncertain_anchors_matches_monte_carlo():
+    rng = np.random.default_rng(2)
+    B, sigma = 4000, 0.1
+    S = gnss_covariance(1.0, 2.0)
+    x = np.zeros(3)
+    anchors_true = AXES * 2
+    d = np.linalg.norm(x - anchors_true, axis=1) + rng.normal(0, sigma, (B, 6))
+    reported = anchors_true + rng.multivariate_normal(np.zeros(3), S, (B, 6))
+    est = solve_ranges(reported, d, np.ones((B, 6), bool), np.zeros((B, 3)), loss="linear").x
+    C = anchor_crb(x[None], anchors_true[None], sigma, anchor_cov=S)[0]
+    assert np.mean(np.sum(est**2, axis=1)) == pytest.approx(np.trace(C), rel=0.08)
+
+
+def test_anchor_bound_prior_and_degenerate_geometry():
+    two = anchor_crb(np.zeros((1, 3)), AXES[None, :2], 0.1)  # one direction only
+    assert np.isinf(two).all()
+    with_prior = anchor_crb(np.zeros((1, 3)), AXES[None, :2], 0.1, prior_cov=np.eye(3))
+    assert np.isfinite(with_prior).all() and with_prior[0, 1, 1] == pytest.approx(1.0)
+
+
+def test_swarm_bound_without_ranges_is_the_gnss_covariance():
+    truth = np.random.default_rng(3).uniform(0, 100, (2, 5, 3))
+    S = gnss_covariance(1.5, 3.0)
+    C = swarm_crb(truth, np.ones((2, 5), bool), np.zeros((2, 5, 5), bool), S, 0.1)
+    np.testing.assert_allclose(C, np.broadcast_to(S, C.shape), atol=1e-12)
+
+
+def test_swarm_bound_matches_monte_carlo_of_the_joint_estimator():
+    rng = np.random.default_rng(4)
+    T, n = 3000, 6
+    S, sigma = gnss_covariance(1.5, 3.0), 0.1
+    truth = np.broadcast_to(rng.uniform(0, 60, (1, n, 3)), (T, n, 3)).copy()
+    trusted = np.ones((T, n), bool)
+    trusted[:, 0] = False  # drone 0 is "faulty": its GNSS is not used
+    reported = truth + rng.multivariate_normal(np.zeros(3), S, (T, n))
+    d = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3) + rng.normal(0, sigma, (T, n, n))
+    x = joint_estimate(reported, d, trusted, S, sigma)
+    C = swarm_crb(truth, trusted, np.ones((T, n, n), bool), S, sigma)
+    sq, nees = error_statistics(x - truth, C)
+    tr = np.trace(C, axis1=2, axis2=3)
+    for i in range(n):
+        assert sq[:, i].mean() == pytest.approx(tr[0, i], rel=0.08)
+    assert nees.mean() == pytest.approx(3.0, rel=0.05)
+    assert np.mean(nees > CHI2_3DOF_999) < 0.004
+    # ranges make the honest drones better than their own GNSS
+    assert (tr[0, 1:] < np.trace(S)).all()

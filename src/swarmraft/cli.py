@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -160,6 +161,31 @@ def main() -> None:
     """
 
 
+def _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
+    """A validated SweepConfig from a preset, an optional TOML file and command-line flags
+    (flags override the file, the file overrides the preset)."""
+    from swarmraft.experiments import build_config
+
+    settings: dict[str, Any] = {}
+    if config_file is not None:
+        try:
+            settings = tomllib.loads(config_file.read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"--config: no file {config_file}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"--config {config_file}: not valid TOML ({exc})") from None
+        preset = settings.pop("preset", preset)
+    overrides = {
+        "n": _int_list(n_text, "--n"),
+        "f": _int_list(f_text, "--f"),
+        "diagonal": diagonal or None,
+        "trials": trials,
+        "seed": seed,
+        **extra,
+    }
+    return build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})
+
+
 PRESET = click.Choice(["reference", "realistic"])
 
 
@@ -224,28 +250,22 @@ def sweep(
     Writes cells.csv (one row per (n, f)), trials.csv (one row per trial) and run.json
     (config, seed, version). Cells already in --out are not recomputed.
     """
-    from swarmraft.experiments import build_config, run_sweep
+    from swarmraft.experiments import run_sweep
 
-    settings: dict[str, Any] = {}
-    if config_file is not None:
-        try:
-            settings = tomllib.loads(config_file.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"--config: no file {config_file}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"--config {config_file}: not valid TOML ({exc})") from None
-        preset = settings.pop("preset", preset)
-    overrides = {
-        "n": _int_list(n_text, "--n"),
-        "f": _int_list(f_text, "--f"),
-        "diagonal": diagonal or None,
-        "trials": trials,
-        "seed": seed,
-        "detector": detector,
-        "detector_params": _params(params) or None,
-        "attack": {"name": attack} if attack else None,
-    }
-    config = build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})
+    config = _sweep_config(
+        preset,
+        config_file,
+        n_text,
+        f_text,
+        diagonal,
+        trials,
+        seed,
+        {
+            "detector": detector,
+            "detector_params": _params(params) or None,
+            "attack": {"name": attack} if attack else None,
+        },
+    )
     out = out or Path("results") / config.preset
     cells = config.cells()
     console.print(
@@ -384,6 +404,103 @@ def check(results) -> None:
         + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
     )
     sys.exit(1 if bad else 0)
+
+
+ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
+
+
+@main.command("compare")
+@click.option("--preset", type=PRESET, default="realistic", show_default=True)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML file with sweep settings (flags given here override it).",
+)
+@click.option(
+    "--detectors",
+    default="paper,clique,fde,joint",
+    show_default=True,
+    help="comma-separated registered detectors",
+)
+@click.option(
+    "--attacks", default="jump", show_default=True, help=f"comma-separated attacks: {', '.join(ATTACK_NAMES)}"
+)
+@click.option("--n", "n_text", default="9,13,17", show_default=True, help="swarm sizes")
+@click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
+@click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
+@click.option("--trials", type=int, default=1000, show_default=True, help="trials per cell")
+@click.option("--seed", type=int, help="master seed [default 2025]")
+@click.option("--workers", type=int, help="local worker processes [default: all cores]")
+@click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local'.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="results folder [default results/compare-<preset>]",
+)
+def compare_cmd(
+    preset, config_file, detectors, attacks, n_text, f_text, diagonal, trials, seed, workers, scheduler, out
+) -> None:
+    """Run several detectors on identical trials and compare them.
+
+    Writes compare.csv (one row per attack, detector and (n, f)), each sweep's folder under
+    OUT/<attack>/<detector>, and one figure per metric in OUT/figures: error of attacked and
+    honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
+    identification rates.
+    """
+    from swarmraft import viz
+    from swarmraft.experiments.compare import COMPARE_METRICS, run_compare
+
+    dets = [d.strip() for d in detectors.split(",") if d.strip()]
+    atks = [a.strip() for a in attacks.split(",") if a.strip()]
+    for a in atks:
+        if a not in ATTACK_NAMES:
+            raise ValueError(f"--attacks: unknown attack {a!r}; known: {', '.join(ATTACK_NAMES)}")
+    config = _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    out = out or Path("results") / f"compare-{config.preset}"
+    console.print(
+        f"compare: {', '.join(dets)} on {', '.join(atks)}, preset {config.preset}, "
+        f"{len(config.cells())} cells x {config.trials} trials -> {out}"
+    )
+    prog, start = progress_bar("compare")
+    with prog:
+        table, _ = run_compare(config, dets, atks, out, workers=workers, scheduler=scheduler, progress=start)
+    t = Table(title="detectors on identical trials", title_justify="left")
+    for col in (
+        "attack",
+        "detector",
+        "n",
+        "f",
+        "attacked m",
+        "honest m",
+        "efficiency",
+        "detect",
+        "false pos",
+        "identified",
+        "unidentifiable",
+    ):
+        t.add_column(col, justify="right")
+    for i in range(len(table["n"])):
+        eff = table["attacked_efficiency"][i]
+        t.add_row(
+            str(table["attack"][i]),
+            str(table["detector"][i]),
+            str(table["n"][i]),
+            str(table["f"][i]),
+            f"{table['recovered_mean'][i]:.3g}",
+            f"{table['honest_mean'][i]:.3g}",
+            "-" if np.isnan(eff) else f"{eff:.2f}",
+            f"{table['detection_rate'][i]:.1%}",
+            f"{table['false_positive_rate'][i]:.1%}",
+            f"{table['identification_rate'][i]:.1%}",
+            f"{table['status_unidentifiable'][i]:.1%}",
+        )
+    console.print(t)
+    console.print(f"wrote {out / 'compare.csv'}")
+    for metric, (label, log) in COMPARE_METRICS.items():
+        if np.isnan(np.asarray(table[metric], float)).all():
+            continue
+        console.print(f"wrote {viz.compare(table, metric, label, log, out / 'figures' / f'{metric}.png')}")
 
 
 @main.command()

@@ -31,6 +31,12 @@ CELL_COLUMNS = (
     "status_ok",
     "status_insufficient",
     "status_unidentifiable",
+    "attacked_efficiency",
+    "attacked_nees",
+    "attacked_catastrophic",
+    "honest_efficiency",
+    "honest_nees",
+    "honest_catastrophic",
 )
 
 
@@ -72,4 +78,13 @@ def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) 
     }
     for s in ("ok", "insufficient", "unidentifiable"):
         row[f"status_{s}"] = float(np.mean(status == s))
+    for g in ("attacked", "honest"):
+        # efficiency = sqrt(mean squared error / mean trace of the bound)
+        sq, bound = (
+            _mean(np.asarray(trials[f"{g}_sq"], float)),
+            _mean(np.asarray(trials[f"{g}_bound"], float)),
+        )
+        row[f"{g}_efficiency"] = float(np.sqrt(sq / bound)) if bound > 0 else float("nan")
+        row[f"{g}_nees"] = _mean(np.asarray(trials[f"{g}_nees"], float))
+        row[f"{g}_catastrophic"] = _mean(np.asarray(trials[f"{g}_catastrophic"], float))
     return row

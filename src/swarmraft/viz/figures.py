@@ -194,3 +194,36 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
     fig.legend(handles, labels, loc="lower center", ncol=3, frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return _save(fig, path)
+
+
+def compare(table: Mapping[str, np.ndarray], metric: str, label: str, log: bool, path: Path) -> Path:
+    """One metric over the (n, f) cells, a line per detector, a panel per attack."""
+    attacks = list(dict.fromkeys(np.asarray(table["attack"]).tolist()))
+    detectors = list(dict.fromkeys(np.asarray(table["detector"]).tolist()))
+    fig, axes = plt.subplots(1, len(attacks), figsize=(5.5 * len(attacks), 4.3), squeeze=False)
+    for ax, attack in zip(axes[0], attacks, strict=True):
+        sel_a = np.asarray(table["attack"]) == attack
+        cells = sorted({(int(n), int(f)) for n, f in zip(table["n"][sel_a], table["f"][sel_a], strict=True)})
+        xs = np.arange(len(cells))
+        for det in detectors:
+            sel = sel_a & (np.asarray(table["detector"]) == det)
+            val = {
+                (int(n), int(f)): float(v)
+                for n, f, v in zip(table["n"][sel], table["f"][sel], table[metric][sel], strict=True)
+            }
+            ys = np.array([val.get(c, np.nan) for c in cells])
+            if log:
+                ys = np.where(ys > 0, ys, np.nan)
+            ax.plot(xs, ys, "o-", label=det)
+        ax.set_xticks(xs, [f"({n},{f})" for n, f in cells], rotation=45 if len(cells) > 8 else 0)
+        ax.set_xlabel("(n, f)")
+        ax.set_title(f"attack: {attack}", fontsize=10)
+        if log:
+            ax.set_yscale("log")
+        else:
+            ax.set_ylim(-0.03, 1.03)
+        ax.grid(True, which="both", ls=":", alpha=0.6)
+    axes[0][0].set_ylabel(label)
+    axes[0][-1].legend(title="detector", loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    return _save(fig, path)

@@ -101,3 +101,72 @@ def test_config_file(tmp_path):
 def test_console_script_runs():
     r = subprocess.run([sys.executable, "-m", "swarmraft.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "sweep" in r.stdout and "figure" in r.stdout
+
+
+def test_compare_and_curves(tmp_path):
+    r = CliRunner().invoke(
+        main,
+        [
+            "compare",
+            "--detectors",
+            "paper,clique",
+            "--attacks",
+            "jump,range-tamper",
+            "--n",
+            "9",
+            "--f",
+            "2",
+            "--trials",
+            "40",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path / "cmp"),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    from swarmraft.experiments.tables import read_table
+
+    t = read_table(tmp_path / "cmp" / "compare.csv")
+    assert sorted(set(zip(t["attack"], t["detector"], strict=True))) == [
+        ("jump", "clique"),
+        ("jump", "paper"),
+        ("range-tamper", "clique"),
+        ("range-tamper", "paper"),
+    ]
+    assert (tmp_path / "cmp" / "figures" / "detection_rate.png").exists()
+    # identical trials: the same reports reach both detectors, so the baselines agree
+    base = {(a, d): b for a, d, b in zip(t["attack"], t["detector"], t["baseline_mean"], strict=True)}
+    assert base[("jump", "clique")] == base[("jump", "paper")]
+    r = CliRunner().invoke(
+        main,
+        [
+            "curves",
+            "--detectors",
+            "clique,fde",
+            "--n",
+            "9",
+            "--f",
+            "2",
+            "--trials",
+            "20",
+            "--offsets",
+            "5,30",
+            "--out",
+            str(tmp_path / "cur"),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    c = read_table(tmp_path / "cur" / "curves.csv")
+    off = [
+        (d, o, p)
+        for d, k, o, p in zip(c["detector"], c["kind"], c["offset"], c["detection"], strict=True)
+        if k == "offset"
+    ]
+    assert len(off) == 4
+    for det in ("clique", "fde"):  # a 30 m spoof is caught more often than a 5 m one
+        pd = {o: p for d, o, p in off if d == det}
+        assert pd[30.0] >= pd[5.0]
+    assert (tmp_path / "cur" / "roc.png").exists()
+    bad = CliRunner().invoke(main, ["compare", "--attacks", "teleport", "--out", str(tmp_path / "x")])
+    assert bad.exit_code == 2 and "unknown attack 'teleport'" in bad.output

@@ -642,6 +642,69 @@ def raft_fuzz(seeds, seed_start, nodes, fault_ms, loss) -> None:
 
 
 @main.command()
+@click.option("--preset", type=PRESET, default="realistic", show_default=True)
+@click.option("--detectors", default="paper,clique,fde,joint", show_default=True)
+@click.option("--n", "n", type=click.IntRange(min=4), default=13, show_default=True, help="swarm size")
+@click.option("--f", "f", type=click.IntRange(min=1), default=3, show_default=True, help="attackers")
+@click.option(
+    "--trials", type=click.IntRange(min=10), default=200, show_default=True, help="trials per point"
+)
+@click.option(
+    "--false-alarm",
+    type=click.FloatRange(0, 1),
+    default=0.01,
+    show_default=True,
+    help="false-alarm rate for the detection-against-offset curve",
+)
+@click.option("--offsets", default="1,2,4,6,8,10,15,20,30,50", show_default=True, help="spoof offsets, m")
+@click.option(
+    "--roc-offset",
+    type=click.FloatRange(min=0),
+    default=10.0,
+    show_default=True,
+    help="spoof offset of the ROC trials, m",
+)
+@click.option("--seed", type=int, default=2025, show_default=True)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/curves"),
+    show_default=True,
+)
+def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, seed, out) -> None:
+    """Detection curves per detector: ROC (detection against false-alarm rate as the
+    threshold moves) and detection probability against spoof offset at a fixed false-alarm
+    rate. Writes curves.csv, roc.png and detection_vs_offset.png."""
+    from swarmraft import viz
+    from swarmraft.experiments import build_config
+    from swarmraft.experiments.curves import THRESHOLDS, detection_curves
+    from swarmraft.experiments.tables import write_rows
+
+    if f > (n - 1) // 2:
+        raise ValueError(f"--f: {f} attackers need n >= {2 * f + 1}")
+    dets = [d.strip() for d in detectors.split(",") if d.strip()]
+    try:
+        offs = [float(v) for v in offsets.split(",")]
+    except ValueError:
+        raise click.BadParameter(
+            f"expected numbers like 1,2,5, got {offsets!r}", param_hint="--offsets"
+        ) from None
+    config = build_config(preset, n=(n,), f=(f,), trials=trials, seed=seed)
+    total = sum(len(THRESHOLDS[d][1]) + len(offs) for d in dets if d in THRESHOLDS)
+    prog, start = progress_bar("curves", "points")
+    with prog:
+        points = detection_curves(config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0))
+    cols = ("detector", "kind", "threshold", "offset", "false_alarm", "detection")
+    write_rows(out / "curves.csv", cols, [p.__dict__ for p in points])
+    title = f"preset {preset}, n = {n}, f = {f}, {trials} trials per point"
+    console.print(f"wrote {out / 'curves.csv'}")
+    console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}")
+    console.print(
+        f"wrote {viz.detection_vs_offset(points, out / 'detection_vs_offset.png', false_alarm, title)}"
+    )
+
+
+@main.command()
 def detectors() -> None:
     """List the registered detectors and their parameters."""
     from swarmraft.estimation import detector_names, get_detector

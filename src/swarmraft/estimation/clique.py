@@ -92,13 +92,15 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     f_max = (n - 1) // 2 if p.f_max is None else p.f_max
     cands = [candidate_sets(adj[t], f_max) for t in range(T)]
     # Test every candidate at once: does a joint estimate trusting it explain the data?
-    owner = np.array([t for t, cs in enumerate(cands) for _ in cs])
+    owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
     masks = np.zeros((owner.size, n), dtype=bool)
     for k, c in enumerate(c for cs in cands for c in cs):
         masks[k, list(c)] = True
-    x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
-    passed = passes_residual_tests(x, reported[owner], ranges[owner], masks, noise, p.p_fa)
-    total = residual_statistics(x, reported[owner], ranges[owner], masks, noise)[2]
+    passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
+    if owner.size:
+        x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
+        passed = passes_residual_tests(x, reported[owner], ranges[owner], masks, noise, p.p_fa)
+        total = residual_statistics(x, reported[owner], ranges[owner], masks, noise)[2]
     trusted = np.zeros((T, n), dtype=bool)
     suspects = np.zeros((T, n), dtype=bool)
     status = np.full(T, "ok", dtype=object)

@@ -2,8 +2,9 @@
 (RAIM). Estimate all positions jointly from every trusted report and range; if the weighted
 sum of squared residuals fails a chi-square test at false-alarm probability ``p_fa``, or the
 largest GNSS residual block fails its own 3-dof test at ``p_fa / n``, exclude the drone with
-the largest residual contribution (its GNSS report and its own ranges) and repeat, until the
-tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain."""
+the largest residual contribution (its GNSS report and its own ranges), together with any
+drone whose contribution is gross (above the local test and half the largest), and
+repeat, until the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from pydantic import Field
 
 from swarmraft.estimation.joint import (
+    chi2_quantile,
     joint_estimate,
     passes_residual_tests,
     residual_statistics,
@@ -19,6 +21,8 @@ from swarmraft.estimation.joint import (
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+GROSS = 1.0  # contributions above this share of the worst are excluded together with it
 
 
 class FDEParams(NoiseParams):
@@ -36,19 +40,43 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
     trusted = np.ones((T, n), dtype=bool)
     active = np.arange(T)
     stat = np.zeros(T)
+    x_all = None
     while active.size:
         tr = trusted[active]
-        x = joint_estimate(reported[active], ranges[active], tr, noise.gnss_cov, noise.range_sigma)
+        # after an exclusion the previous solution is a close start: a few iterations do
+        start = None if x_all is None else x_all[active]
+        x = joint_estimate(
+            reported[active],
+            ranges[active],
+            tr,
+            noise.gnss_cov,
+            noise.range_sigma,
+            iters=8,
+            x0=start,
+        )
+        x_all = np.zeros_like(reported) if x_all is None else x_all
+        x_all[active] = x
         per, _, total, dof = residual_statistics(x, reported[active], ranges[active], tr, noise)
         stat[active] = total
         failed = ~passes_residual_tests(x, reported[active], ranges[active], tr, noise, p.p_fa)
         f_max = (n - 1) // 2 if p.f_max is None else p.f_max
         can = (tr.sum(axis=1) > p.min_trusted) & ((~tr).sum(axis=1) < f_max)
         go = failed & can
-        worst = np.argmax(np.where(tr, per, -np.inf), axis=1)
-        trusted[active[go], worst[go]] = False
+        score = np.where(tr, per, -np.inf)
+        worst = np.argmax(score, axis=1)
+        # Gross faults need not wait their turn: with the worst, exclude every drone whose
+        # contribution is above both the local test and half the worst, up to f_max.
+        gross = tr & (per > np.maximum(chi2_quantile(1 - p.p_fa / n, 3), GROSS * score.max(axis=1))[:, None])
+        gross[np.arange(len(worst)), worst] = True
+        room = f_max - (~tr).sum(axis=1)
+        rank = np.argsort(np.argsort(-score, axis=1), axis=1)
+        gross &= rank < room[:, None]
+        gross &= go[:, None]
+        trusted[active] &= ~gross
         active = active[go]
-    positions, status = trusted_estimate(reported, ranges, trusted, noise.gnss_cov, noise.range_sigma)
+    positions, status = trusted_estimate(
+        reported, ranges, trusted, noise.gnss_cov, noise.range_sigma, x0=x_all
+    )
     return VerdictBatch(
         positions=positions, faulty=~trusted, status=status, diagnostics={"chi2": stat, "trusted": trusted}
     )

@@ -11,7 +11,7 @@ uses it with robust weights.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.trust_region import linear_multilateration
@@ -44,7 +44,7 @@ def weighted_gauss_newton(
     range_sigma: float,
     iters: int = 8,
     damping: float = 1e-9,
-    tol: float = 1e-9,
+    tol: float = 1e-7,
 ) -> np.ndarray:
     """Minimise sum_i gnss_w_i |G^1/2 (x_i - z_i)|^2 + sum_ij range_w_ij ((|x_i - x_j| - d_ij)/s)^2
     over x (T, n, 3), starting at x0. Unmeasured ranges must have zero weight."""
@@ -63,13 +63,12 @@ def weighted_gauss_newton(
         g = np.einsum("tn,ij,tnj->tni", gnss_w, G, x - reported)
         wr = w_r * r
         g += np.einsum("tij,tijk->tik", wr, u) - np.einsum("tij,tijk->tjk", wr, u)
-        H = np.zeros((T, n, 3, n, 3))
-        H[:, idx, :, idx, :] += (gnss_w[..., None, None] * G).transpose(1, 0, 2, 3)
         ws = w_r + np.swapaxes(w_r, 1, 2)  # both directions of a pair share u u^T
-        uu = np.einsum("tij,tijk,tijl->tijkl", ws, u, u)
-        H -= uu.transpose(0, 1, 3, 2, 4)
-        H[:, idx, :, idx, :] += uu.sum(axis=2).transpose(1, 0, 2, 3)
-        H = H.reshape(T, 3 * n, 3 * n)
+        uu = np.einsum("tij,tijk,tijl->tijkl", ws, u, u)  # (T, n, n, 3, 3); zero for i = j
+        diag = uu.sum(axis=2) + gnss_w[..., None, None] * G
+        uu = -uu
+        uu[:, idx, idx] = diag  # block (i, j) = -w u u^T, block (i, i) = its GNSS + sum of w u u^T
+        H = uu.transpose(0, 1, 3, 2, 4).reshape(T, 3 * n, 3 * n)
         scale = np.maximum(np.abs(np.diagonal(H, axis1=1, axis2=2)).max(axis=1), 1.0)
         step = np.linalg.solve(H + (damping * scale)[:, None, None] * eye, -g.reshape(T, 3 * n, 1))
         x += step.reshape(T, n, 3)
@@ -104,11 +103,14 @@ def joint_estimate(
     gnss_cov: np.ndarray,
     range_sigma: float,
     iters: int = 8,
+    x0: np.ndarray | None = None,
 ) -> np.ndarray:
     """All positions (T, n, 3) with the trusted set known: GNSS of trusted drones, ranges
     measured by trusted drones (an untrusted drone's own ranges may be tampered), and ranges
-    measured by others to the untrusted ones."""
-    x0 = initial_positions(reported, ranges, trusted)
+    measured by others to the untrusted ones. ``x0``: a start (e.g. the previous solution
+    when the trusted set shrinks by one); by default closed-form multilateration."""
+    if x0 is None:
+        x0 = initial_positions(reported, ranges, trusted)
     gnss_w = trusted.astype(float)
     range_w = np.broadcast_to(trusted[:, :, None], ranges.shape).astype(float)
     return weighted_gauss_newton(x0, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters)
@@ -122,12 +124,19 @@ def anchor_counts(ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
 
 
 def trusted_estimate(
-    reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, gnss_cov: np.ndarray, range_sigma: float
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    x0: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint estimate with a decided trusted set, and the status per trial: ``insufficient``
     when an untrusted drone has fewer than 4 trusted drones to range with (3 spheres leave a
     mirror ambiguity, fewer a continuum); its report is then kept rather than guessed."""
-    positions = joint_estimate(reported, ranges, trusted, gnss_cov, range_sigma)
+    positions = joint_estimate(
+        reported, ranges, trusted, gnss_cov, range_sigma, iters=8 if x0 is None else 4, x0=x0
+    )
     thin = ~trusted & (anchor_counts(ranges, trusted) < 4)
     positions = np.where(thin[..., None], reported, positions)
     return positions, np.where(thin.any(axis=1), "insufficient", "ok")
@@ -148,6 +157,12 @@ def residual_statistics(
     return per, gnss_q, per.sum(axis=1), dof
 
 
+def chi2_quantile(q: float, dof: np.ndarray | int) -> np.ndarray:
+    """Chi-square quantile (scipy.special.chdtri: the ufunc behind chi2.ppf, without its
+    per-call argument checking, which dominated the detectors' step time)."""
+    return chdtri(dof, 1 - q)
+
+
 def passes_residual_tests(
     x: np.ndarray,
     reported: np.ndarray,
@@ -161,6 +176,6 @@ def passes_residual_tests(
     trusted GNSS report at ``p_fa / n`` (its power does not drown in the range residuals)."""
     n = x.shape[1]
     _, gnss_q, total, dof = residual_statistics(x, reported, ranges, trusted, noise)
-    local_ok = np.where(trusted, gnss_q, 0.0).max(axis=1) <= chi2.ppf(1 - p_fa / n, 3)
-    global_ok = (dof <= 0) | (total <= chi2.ppf(1 - p_fa, np.maximum(dof, 1)))
+    local_ok = np.where(trusted, gnss_q, 0.0).max(axis=1) <= chi2_quantile(1 - p_fa / n, 3)
+    global_ok = (dof <= 0) | (total <= chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
     return local_ok & global_ok

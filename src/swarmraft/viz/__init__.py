@@ -1,5 +1,5 @@
 """Figures drawn from results (tables and recovery cases), never from internals."""
 
-from swarmraft.viz.figures import compare, distribution, recovery, scaling
+from swarmraft.viz.figures import compare, detection_vs_offset, distribution, recovery, roc, scaling
 
-__all__ = ["compare", "distribution", "recovery", "scaling"]
+__all__ = ["compare", "detection_vs_offset", "distribution", "recovery", "roc", "scaling"]

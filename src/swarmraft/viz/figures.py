@@ -227,3 +227,43 @@ def compare(table: Mapping[str, np.ndarray], metric: str, label: str, log: bool,
     axes[0][-1].legend(title="detector", loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     return _save(fig, path)
+
+
+def roc(points: Sequence, path: Path, title: str = "") -> Path:
+    """ROC curves: detection rate against false-alarm rate, one curve per detector."""
+    fig, ax = plt.subplots(figsize=(6.2, 5))
+    for det in dict.fromkeys(p.detector for p in points):
+        pts = [(p.false_alarm, p.detection) for p in points if p.detector == det and p.kind == "roc"]
+        fa, pd = zip(*pts, strict=True)  # in threshold order: the curve a threshold traces
+        ax.plot(np.maximum(fa, 1e-5), pd, "o-", ms=3, label=det)
+    ax.set_xscale("log")
+    ax.set_xlabel("false-alarm rate (honest drones flagged; 1e-5 = none)")
+    ax.set_ylabel("detection rate (attacked drones flagged)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(True, which="both", ls=":", alpha=0.6)
+    ax.legend(title="detector")
+    offset = next(p.offset for p in points if p.kind == "roc")
+    ax.set_title(f"ROC, spoofs of {offset:g} m{chr(10) + title if title else ''}", fontsize=10)
+    return _save(fig, path)
+
+
+def detection_vs_offset(points: Sequence, path: Path, false_alarm: float, title: str = "") -> Path:
+    """Detection probability against spoof offset at a fixed false-alarm rate."""
+    fig, ax = plt.subplots(figsize=(6.2, 5))
+    for det in dict.fromkeys(p.detector for p in points):
+        pts = sorted(
+            (p.offset, p.detection, p.false_alarm) for p in points if p.detector == det and p.kind == "offset"
+        )
+        off, pd, fa = zip(*pts, strict=True)
+        ax.plot(off, pd, "o-", label=f"{det} (false alarms {np.mean(fa):.1%})")
+    ax.set_xlabel("spoof offset, m")
+    ax.set_ylabel("detection probability")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(True, ls=":", alpha=0.6)
+    ax.legend()
+    ax.set_title(
+        f"Detection against offset, thresholds for false alarms <= {false_alarm:.1%}"
+        f"{chr(10) + title if title else ''}",
+        fontsize=10,
+    )
+    return _save(fig, path)

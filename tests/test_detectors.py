@@ -115,3 +115,22 @@ def test_noise_model_is_required():
     s = Snapshot(reported=np.zeros((4, 3)), ranges=np.zeros((4, 4)))
     with pytest.raises(ValueError, match="clique: needs the ranging noise"):
         verify(s, "clique")
+
+
+@pytest.mark.parametrize("det", NEW)
+def test_prior_resolves_the_three_anchor_mirror(det):
+    from swarmraft.estimation import Snapshot
+
+    rng = np.random.default_rng(5)
+    truth = rng.uniform(0, 100, (7, 3))
+    rep = truth.copy()
+    rep[0] += [0.0, 40.0, 0.0]
+    ranges = np.linalg.norm(truth[:, None] - truth[None], axis=2)
+    ranges[0, 4:] = ranges[4:, 0] = np.nan  # the spoofed drone ranges with only 3 others
+    plain = verify(Snapshot(reported=rep, ranges=ranges, range_sigma=0.0), det)
+    assert plain.status == "insufficient" and plain.faulty[0]
+    prior = np.full((7, 3), np.nan)
+    prior[0] = truth[0] + [1.0, -1.0, 0.5]  # e.g. the previous verified position
+    v = verify(Snapshot(reported=rep, ranges=ranges, range_sigma=0.0, prior=prior, prior_sigma=2.0), det)
+    assert v.status == "ok" and v.faulty[0]
+    assert np.linalg.norm(v.positions[0] - truth[0]) < 0.05

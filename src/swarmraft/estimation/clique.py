@@ -126,8 +126,15 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     positions = reported.copy()
     use = trusted.any(axis=1)
     if use.any():
+        prior = None if batch.prior is None else np.asarray(batch.prior, float)[use]
         positions[use], fit_status = trusted_estimate(
-            reported[use], ranges[use], trusted[use], noise.gnss_cov, noise.range_sigma
+            reported[use],
+            ranges[use],
+            trusted[use],
+            noise.gnss_cov,
+            noise.range_sigma,
+            prior=prior,
+            prior_sigma=batch.prior_sigma,
         )
         status[use] = np.where(status[use] == "ok", fit_status, status[use])
     faulty = suspects

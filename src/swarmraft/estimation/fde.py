@@ -75,7 +75,14 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
         trusted[active] &= ~gross
         active = active[go]
     positions, status = trusted_estimate(
-        reported, ranges, trusted, noise.gnss_cov, noise.range_sigma, x0=x_all
+        reported,
+        ranges,
+        trusted,
+        noise.gnss_cov,
+        noise.range_sigma,
+        x0=x_all,
+        prior=batch.prior,
+        prior_sigma=batch.prior_sigma,
     )
     return VerdictBatch(
         positions=positions, faulty=~trusted, status=status, diagnostics={"chi2": stat, "trusted": trusted}

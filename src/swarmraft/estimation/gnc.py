@@ -107,14 +107,29 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         if not back.any():
             break
         faulty &= ~back
-    positions, status = trusted_estimate(reported, ranges, ~faulty, noise.gnss_cov, noise.range_sigma)
+    positions, status = trusted_estimate(
+        reported,
+        ranges,
+        ~faulty,
+        noise.gnss_cov,
+        noise.range_sigma,
+        prior=batch.prior,
+        prior_sigma=batch.prior_sigma,
+    )
     # GNC can settle on a wrong partition; where its answer fails the residual tests, take the
     # clique detector's answer for that trial if that one passes them.
     f_max = (n - 1) // 2 if p.f_max is None else p.f_max
     bad = ~passes_residual_tests(positions, reported, ranges, ~faulty, noise, p.p_fa)
     bad |= faulty.sum(axis=1) > f_max
     if bad.any():
-        sub = SnapshotBatch(reported[bad], ranges[bad], batch.gnss_sigma, batch.range_sigma)
+        sub = SnapshotBatch(
+            reported[bad],
+            ranges[bad],
+            batch.gnss_sigma,
+            batch.range_sigma,
+            None if batch.prior is None else batch.prior[bad],
+            batch.prior_sigma,
+        )
         alt = clique_detector(
             sub, CliqueParams(**p.model_dump(include=set(NoiseParams.model_fields)), p_fa=p.p_fa)
         )

@@ -45,9 +45,12 @@ def weighted_gauss_newton(
     iters: int = 8,
     damping: float = 1e-9,
     tol: float = 1e-7,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
 ) -> np.ndarray:
     """Minimise sum_i gnss_w_i |G^1/2 (x_i - z_i)|^2 + sum_ij range_w_ij ((|x_i - x_j| - d_ij)/s)^2
-    over x (T, n, 3), starting at x0. Unmeasured ranges must have zero weight."""
+    (+ sum_i |x_i - p_i|^2 / prior_sigma^2 over drones with a prior p_i, nan = none) over
+    x (T, n, 3), starting at x0. Unmeasured ranges must have zero weight."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
     G = np.linalg.inv(np.asarray(gnss_cov, float))
@@ -56,6 +59,10 @@ def weighted_gauss_newton(
     d = np.nan_to_num(ranges)
     idx = np.arange(n)
     eye = np.eye(3 * n)
+    has_prior = prior is not None and prior_sigma is not None and prior_sigma > 0
+    if has_prior:
+        prior_w = np.where(np.isnan(prior).any(axis=2), 0.0, 1.0 / prior_sigma**2)
+        prior_pos = np.nan_to_num(prior)
     for _ in range(iters):
         dist, u = _geometry(x)
         r = np.where(meas, dist - d, 0.0)
@@ -63,9 +70,13 @@ def weighted_gauss_newton(
         g = np.einsum("tn,ij,tnj->tni", gnss_w, G, x - reported)
         wr = w_r * r
         g += np.einsum("tij,tijk->tik", wr, u) - np.einsum("tij,tijk->tjk", wr, u)
+        if has_prior:
+            g += prior_w[..., None] * (x - prior_pos)
         ws = w_r + np.swapaxes(w_r, 1, 2)  # both directions of a pair share u u^T
         uu = np.einsum("tij,tijk,tijl->tijkl", ws, u, u)  # (T, n, n, 3, 3); zero for i = j
         diag = uu.sum(axis=2) + gnss_w[..., None, None] * G
+        if has_prior:
+            diag = diag + prior_w[..., None, None] * np.eye(3)
         uu = -uu
         uu[:, idx, idx] = diag  # block (i, j) = -w u u^T, block (i, i) = its GNSS + sum of w u u^T
         H = uu.transpose(0, 1, 3, 2, 4).reshape(T, 3 * n, 3 * n)
@@ -77,11 +88,17 @@ def weighted_gauss_newton(
     return x
 
 
-def initial_positions(reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+def initial_positions(
+    reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, prior: np.ndarray | None = None
+) -> np.ndarray:
     """Start for the joint solve: trusted drones at their reports; the others by closed-form
-    multilateration from the trusted ones they have ranges with (their report if fewer than
-    4 such anchors)."""
+    multilateration from the trusted ones they have ranges with, or, with fewer than 4 such
+    anchors, at their prior if they have one (which picks the right one of the two mirror
+    solutions that 3 anchors leave), else at their report."""
     x = np.array(reported, dtype=float, copy=True)
+    if prior is not None:
+        use = ~trusted & ~np.isnan(prior).any(axis=2)
+        x[use] = prior[use]
     T, n, _ = x.shape
     towards = np.swapaxes(ranges, 1, 2)  # anchors' own measurements d_jA first
     dists = np.where(np.isnan(towards), ranges, towards)
@@ -104,16 +121,30 @@ def joint_estimate(
     range_sigma: float,
     iters: int = 8,
     x0: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
 ) -> np.ndarray:
     """All positions (T, n, 3) with the trusted set known: GNSS of trusted drones, ranges
-    measured by trusted drones (an untrusted drone's own ranges may be tampered), and ranges
-    measured by others to the untrusted ones. ``x0``: a start (e.g. the previous solution
-    when the trusted set shrinks by one); by default closed-form multilateration."""
+    measured by trusted drones (an untrusted drone's own ranges may be tampered), ranges
+    measured by others to the untrusted ones, and priors (T, n, 3; nan = none) where given.
+    ``x0``: a start (e.g. the previous solution when the trusted set shrinks by one); by
+    default closed-form multilateration."""
     if x0 is None:
-        x0 = initial_positions(reported, ranges, trusted)
+        x0 = initial_positions(reported, ranges, trusted, prior)
     gnss_w = trusted.astype(float)
     range_w = np.broadcast_to(trusted[:, :, None], ranges.shape).astype(float)
-    return weighted_gauss_newton(x0, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters)
+    return weighted_gauss_newton(
+        x0,
+        reported,
+        ranges,
+        gnss_w,
+        range_w,
+        gnss_cov,
+        range_sigma,
+        iters,
+        prior=prior,
+        prior_sigma=prior_sigma,
+    )
 
 
 def anchor_counts(ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
@@ -130,14 +161,28 @@ def trusted_estimate(
     gnss_cov: np.ndarray,
     range_sigma: float,
     x0: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint estimate with a decided trusted set, and the status per trial: ``insufficient``
     when an untrusted drone has fewer than 4 trusted drones to range with (3 spheres leave a
-    mirror ambiguity, fewer a continuum); its report is then kept rather than guessed."""
+    mirror ambiguity, fewer a continuum), or fewer than 3 if it has a prior (previous verified
+    position or INS) that resolves the mirror; its report is then kept rather than guessed."""
     positions = joint_estimate(
-        reported, ranges, trusted, gnss_cov, range_sigma, iters=8 if x0 is None else 4, x0=x0
+        reported,
+        ranges,
+        trusted,
+        gnss_cov,
+        range_sigma,
+        iters=8 if x0 is None else 4,
+        x0=x0,
+        prior=prior,
+        prior_sigma=prior_sigma,
     )
-    thin = ~trusted & (anchor_counts(ranges, trusted) < 4)
+    need = np.full(trusted.shape, 4)
+    if prior is not None and prior_sigma:
+        need = np.where(np.isnan(prior).any(axis=2), 4, 3)
+    thin = ~trusted & (anchor_counts(ranges, trusted) < need)
     positions = np.where(thin[..., None], reported, positions)
     return positions, np.where(thin.any(axis=1), "insufficient", "ok")
 

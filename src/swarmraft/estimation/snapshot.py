@@ -32,6 +32,8 @@ class Snapshot:
     gnss_sigma: optional (horizontal, vertical) GNSS sigma per axis, metres.
     range_sigma: optional ranging sigma, metres.
     source: optional (n,) of "gnss", "ins" or "none": where each report came from.
+    prior: optional (n, 3) prior positions (previous verified position or INS), nan rows for
+        none; with ``prior_sigma`` (m) it resolves the mirror ambiguity of 3 anchors.
     """
 
     reported: np.ndarray
@@ -39,6 +41,8 @@ class Snapshot:
     gnss_sigma: tuple[float, float] | None = None
     range_sigma: float | None = None
     source: np.ndarray | None = None
+    prior: np.ndarray | None = None
+    prior_sigma: float | None = None
 
     def __post_init__(self) -> None:
         rep = _as_float_array("reported", self.reported, "(n, 3)")
@@ -66,6 +70,13 @@ class Snapshot:
             if src.shape != (n,) or not set(src.tolist()) <= set(SOURCES):
                 raise ValueError(f"source: expected ({n},) of {', '.join(SOURCES)}")
             object.__setattr__(self, "source", src)
+        if self.prior is not None:
+            pr = _as_float_array("prior", self.prior, "(n, 3)")
+            if pr.shape != (n, 3) or np.isinf(pr).any():
+                raise ValueError(f"prior: expected shape ({n}, 3) of finite values or nan rows")
+            object.__setattr__(self, "prior", pr)
+        if self.prior_sigma is not None and not float(self.prior_sigma) > 0:
+            raise ValueError("prior_sigma: must be > 0")
         object.__setattr__(self, "reported", rep)
         object.__setattr__(self, "ranges", rng)
 
@@ -97,6 +108,8 @@ class SnapshotBatch:
     ranges: np.ndarray
     gnss_sigma: tuple[float, float] | None = None
     range_sigma: float | None = None
+    prior: np.ndarray | None = None  # (T, n, 3), nan rows for none
+    prior_sigma: float | None = None
 
     @classmethod
     def of(cls, snapshot: Snapshot) -> SnapshotBatch:
@@ -105,6 +118,8 @@ class SnapshotBatch:
             ranges=snapshot.ranges[None],
             gnss_sigma=snapshot.gnss_sigma,
             range_sigma=snapshot.range_sigma,
+            prior=None if snapshot.prior is None else snapshot.prior[None],
+            prior_sigma=snapshot.prior_sigma,
         )
 
     @property

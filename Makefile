@@ -33,6 +33,7 @@ test: lint
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_paper.py
+	$(BIN)/python benchmarks/bench_detectors.py
 	$(BIN)/python benchmarks/bench_raft.py
 
 clean:

@@ -556,8 +556,8 @@ def calibrate(preset, n_text, trials, seed) -> None:
 @click.option("--workers", type=int, help="local worker processes [default: all cores]")
 def demo(out, trials, workers) -> None:
     """The demo job: a reference sweep (the paper's experiment with fewer trials), a realistic
-    sweep (GNSS and UWB noise, calibrated thresholds), their figures and a comparison with the
-    published numbers."""
+    sweep (GNSS and UWB noise, calibrated thresholds), their figures, a comparison with the
+    published numbers, and the four detectors compared on identical realistic trials."""
     from swarmraft.experiments import build_config, run_sweep
     from swarmraft.experiments.published import compare_published
 
@@ -582,6 +582,37 @@ def demo(out, trials, workers) -> None:
             console.print(line)
         written += result.paths + draw_figures("all", folder)
         console.print(f"{preset} done in {result.seconds:.1f} s on {result.executor}")
+    from swarmraft import viz
+    from swarmraft.experiments.compare import COMPARE_METRICS, run_compare
+
+    folder = out / "compare"
+    n_trials = max(1, trials // 8)
+    console.rule(
+        f"[bold]detectors compared[/]: realistic, n = 17, f = 8, {n_trials} identical trials -> {folder}"
+    )
+    config = build_config("realistic", n=(17,), f=(8,), trials=n_trials)
+    prog, start = progress_bar("compare")
+    with prog:
+        table, _ = run_compare(
+            config, ["paper", "clique", "fde", "joint"], ["jump"], folder, workers=workers, progress=start
+        )
+    t = Table(title="mean error (m) and efficiency against the Cramér-Rao bound", title_justify="left")
+    for col in ("detector", "attacked m", "honest m", "raw GNSS m", "efficiency", "detected", "false pos"):
+        t.add_column(col, justify="right")
+    for i in range(len(table["n"])):
+        t.add_row(
+            str(table["detector"][i]),
+            f"{table['recovered_mean'][i]:.2f}",
+            f"{table['honest_mean'][i]:.2f}",
+            f"{table['honest_baseline_mean'][i]:.2f}",
+            f"{table['attacked_efficiency'][i]:.2f}",
+            f"{table['detection_rate'][i]:.1%}",
+            f"{table['false_positive_rate'][i]:.1%}",
+        )
+    console.print(t)
+    written.append(folder / "compare.csv")
+    for metric, (label, log) in COMPARE_METRICS.items():
+        written.append(viz.compare(table, metric, label, log, folder / "figures" / f"{metric}.png"))
     console.rule("[bold]written[/]")
     for p in written:
         console.print(f"  {p}")

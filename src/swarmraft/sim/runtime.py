@@ -116,6 +116,7 @@ class Cluster:
         self._applied: dict[int, list[Entry]] = {i: [] for i in self.ids}
         self.checker = InvariantChecker(seed) if check_invariants else None
         self.sent: Counter[str] = Counter()
+        self.app_sent = 0
         self.delivered: Counter[str] = Counter()
         self.on_apply = on_apply
         for i in self.ids:
@@ -258,6 +259,18 @@ class Cluster:
     def set_loss(self, p: float) -> None:
         """Loss probability p on every link."""
         self.network.set_all(loss=p)
+
+    # -- application messages -------------------------------------------------------------
+    def send_app(self, frm: int, to: int, handler: Callable[[int, Any], None], payload: Any) -> None:
+        """Send an application message (e.g. a drone's report) over the same network model;
+        ``handler(to, payload)`` runs on delivery if node ``to`` is up."""
+        self.app_sent += 1
+        for d in self.network.delays(self.rng, frm, to):
+            self.loop.after(d, self._deliver_app, to, handler, payload)
+
+    def _deliver_app(self, to: int, handler: Callable[[int, Any], None], payload: Any) -> None:
+        if self.nodes.get(to) is not None:
+            handler(to, payload)
 
     # -- client side ----------------------------------------------------------------------
     def propose(self, data: bytes, via: int | None = None) -> bool:

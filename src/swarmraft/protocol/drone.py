@@ -1,0 +1,202 @@
+"""The SwarmRaft drone: reports, the leader's verification, and the replicated state machine.
+
+Pure logic (no clock, no network): the host (the simulator, or a real runtime) calls
+
+- `make_report` every step and sends the report to the Raft leader;
+- `receive` on the leader for each report that arrives (signatures are checked);
+- `verify_step` on the leader at the step's deadline, and proposes the returned record's
+  bytes to Raft;
+- `apply` on every drone, in log order, for each committed entry.
+
+Exactly one record per step: `apply` takes records in step order and ignores a record for a
+step that already has one (a new leader may propose a step again) or for a step behind the
+last applied one; steps passed over are *skipped*. Every drone applies the same log, so every
+drone holds the same records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
+from swarmraft.estimation.bounds import gnss_covariance
+from swarmraft.estimation.joint import trusted_estimate
+from swarmraft.protocol.records import Report, StepRecord, reports_digest
+from swarmraft.protocol.signing import Keyring
+
+MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    """Leader-side settings. ``innovation_gate``: flag a drone whose whitened GNSS-minus-INS
+    innovation (squared, 3 dof) exceeds it (None: off); ``innovation_sigma``: the 1-sigma
+    (horizontal, vertical) per axis of an honest drone's innovation (GNSS change plus INS
+    drift over the window). A drone flagged in the last record stays flagged while its report
+    disagrees (beyond the same gate) with where the trusted drones put it."""
+
+    n: int
+    detector: str = "paper"
+    detector_params: dict[str, Any] = field(default_factory=dict)
+    gnss_sigma: tuple[float, float] = (1.5, 3.0)
+    range_sigma: float = 0.1
+    innovation_gate: float | None = 25.9  # chi-square 3 dof at 1e-5
+    innovation_sigma: tuple[float, float] = (0.5, 0.9)
+    prior_sigma: float = 3.0  # m: the last record's position, one step (up to ~1 m of motion) old
+
+
+@dataclass
+class Applied:
+    """A drone's replicated state: records by step, and the steps passed over."""
+
+    records: dict[int, StepRecord] = field(default_factory=dict)
+    skipped: list[int] = field(default_factory=list)
+    last_step: int = -1
+    ignored: int = 0  # records for a step already decided (re-proposals) or behind
+
+
+class SwarmDrone:
+    def __init__(self, index: int, config: ProtocolConfig, keys: Keyring) -> None:
+        self.index = index
+        self.config = config
+        self.keys = keys
+        self.state = Applied()
+        self.inbox: dict[int, dict[int, Report]] = {}
+        self.rejected = 0
+        get_detector(config.detector)
+
+    # -- every drone ------------------------------------------------------------------------
+    def make_report(
+        self, step: int, position: np.ndarray, source: str, ranges: np.ndarray, innovation: np.ndarray | None
+    ) -> Report:
+        return self.keys.sign(
+            Report(
+                step, self.index, np.asarray(position, float), source, np.asarray(ranges, float), innovation
+            )
+        )
+
+    def apply(self, data: bytes) -> StepRecord | None:
+        """Apply one committed entry; returns the record if it took effect."""
+        rec = StepRecord.decode(data)
+        st = self.state
+        if rec.step <= st.last_step:
+            st.ignored += 1
+            return None
+        st.skipped.extend(range(st.last_step + 1, rec.step))
+        st.records[rec.step] = rec
+        st.last_step = rec.step
+        return rec
+
+    # -- leader -----------------------------------------------------------------------------
+    def receive(self, report: Report) -> bool:
+        """Keep a report for its step if its signature verifies and the step is still open."""
+        if report.step <= self.state.last_step or not self.keys.verify(report):
+            self.rejected += report.step > self.state.last_step
+            return False
+        self.inbox.setdefault(report.step, {})[report.drone] = report
+        return True
+
+    def has_all(self, step: int) -> bool:
+        return len(self.inbox.get(step, {})) == self.config.n
+
+    def verify_step(self, step: int, term: int) -> StepRecord | None:
+        """The leader's verdict for a step from the reports it holds (None if it has none,
+        or the step is already decided)."""
+        reports = self.inbox.pop(step, {})
+        for old in [k for k in self.inbox if k < step]:
+            del self.inbox[old]
+        if not reports or step <= self.state.last_step:
+            return None
+        c = self.config
+        n = c.n
+        present = np.zeros(n, dtype=bool)
+        present[list(reports)] = True
+        reported = np.full((n, 3), np.nan)
+        ranges = np.full((n, n), np.nan)
+        for i, r in reports.items():
+            reported[i] = r.position
+            ranges[i] = r.ranges
+        np.fill_diagonal(ranges, 0.0)
+        idx = np.flatnonzero(present)
+        # The last record's positions are a prior (0.1 s old): they resolve the mirror of three
+        # anchors, and stand in for a flagged drone whose geometry is insufficient.
+        last = self.state.records.get(self.state.last_step)
+        prior = last.positions if last is not None else np.full((n, 3), np.nan)
+        sub = SnapshotBatch(
+            reported[idx][None],
+            ranges[np.ix_(idx, idx)][None],
+            c.gnss_sigma,
+            c.range_sigma,
+            prior[idx][None],
+            c.prior_sigma,
+        )
+        v = verify_batch(sub, c.detector, **c.detector_params)
+        positions = np.full((n, 3), np.nan)
+        faulty = np.zeros(n, dtype=bool)
+        positions[idx] = v.positions[0]
+        faulty[idx] = v.faulty[0]
+        status = str(v.status[0])
+        stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
+        positions[stuck] = prior[stuck]
+        det_faulty = faulty.copy()
+        # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
+        # the window (a slow drag-off, invisible to one snapshot).
+        gate = np.zeros(n, dtype=bool)
+        sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
+        if c.innovation_gate is not None:
+            for i, r in reports.items():
+                if r.innovation is not None and np.isfinite(r.innovation).all():
+                    gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+        # Latch: drones flagged in the last record stay suspect until their reports agree with
+        # the trusted drones again.
+        before = last.faulty if last is not None else np.zeros(n, dtype=bool)
+        carry = present & before & ~faulty & ~gate
+        faulty |= gate
+        if (gate | carry | ~present).any():
+            trusted = present & ~faulty & ~carry
+            if trusted.sum() >= 4:
+                start = np.where(present[:, None], reported, np.nanmean(reported[trusted], axis=0))
+                cov = gnss_covariance(*c.gnss_sigma)
+                est, st = trusted_estimate(
+                    start[None],
+                    ranges[None],
+                    trusted[None],
+                    cov,
+                    c.range_sigma,
+                    prior=prior[None],
+                    prior_sigma=c.prior_sigma,
+                )
+                est = est[0]
+                gate_chi2 = c.innovation_gate or 25.9
+                disagree = np.sum((reported - est) ** 2 / np.diag(cov), axis=1) > gate_chi2
+                faulty |= carry & disagree
+                # the final trusted set differs from the detector's: re-estimate what it
+                # would have (for `paper`, whose honest positions are the reports, only the
+                # newly flagged drones)
+                again = faulty & ~det_faulty & present
+                if c.detector != "paper" and again.any():
+                    again = present
+                positions[again] = est[again]
+                found = ~present & _anchored(ranges, trusted)
+                positions[found] = est[found]
+                if st[0] != "ok" and status == "ok":
+                    status = str(st[0])
+        return StepRecord(
+            step,
+            term,
+            positions,
+            faulty,
+            ~present,
+            status,
+            c.detector,
+            reports_digest(list(reports.values())),
+        )
+
+
+def _anchored(ranges: np.ndarray, trusted: np.ndarray, need: int = 4) -> np.ndarray:
+    """Drones with ranges from at least ``need`` trusted drones."""
+    measured = ~np.isnan(ranges) & ~np.eye(len(trusted), dtype=bool)
+    return (measured & trusted[:, None]).sum(axis=0) >= need

@@ -1,0 +1,367 @@
+"""A SwarmRaft mission in the simulator: drones move, sense, report to the Raft leader, and
+apply the verified positions committed through the Raft log, with the network model and the
+scenario's faults. Returns a `MissionLog` of raw per-step data; metrics and files are the
+experiments layer's job."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarmraft.protocol import Keyring, ProtocolConfig, Report, SwarmDrone
+from swarmraft.raft import Entry, EntryKind
+from swarmraft.sim.network import LinkModel
+from swarmraft.sim.runtime import Cluster
+from swarmraft.sim.scenario import Scenario
+from swarmraft.world import GaussMarkov, UWBRanging
+from swarmraft.world.ins import InsDrift, ins_grade, ins_sigma
+from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
+from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
+
+
+@dataclass
+class MissionLog:
+    """Per step k (S steps) and drone i (n drones)."""
+
+    scenario: Scenario
+    t: np.ndarray  # (S,) s
+    truth: np.ndarray  # (S, n, 3)
+    gnss: np.ndarray  # (S, n, 3) receiver output (spoofed where spoofed), nan in an outage
+    honest_gnss: np.ndarray  # (S, n, 3) what an unspoofed receiver would output
+    reported: np.ndarray  # (S, n, 3) what the drone reported, nan if it sent nothing
+    ins_alone: np.ndarray  # (S, n, 3) INS dead reckoning from the start, never reset
+    spoofed: np.ndarray  # (S, n) bool
+    outage: np.ndarray  # (S, n) bool
+    alive: np.ndarray  # (S, n) bool
+    verified: np.ndarray  # (S, n, 3) committed positions, nan where missing or skipped
+    faulty: np.ndarray  # (S, n) bool
+    missing: np.ndarray  # (S, n) bool
+    committed: np.ndarray  # (S,) bool: the step has a record
+    status: np.ndarray  # (S,) str
+    leader: np.ndarray  # (S,) node id at the deadline, 0 = none
+    term: np.ndarray  # (S,)
+    latency_ms: np.ndarray  # (S,) step start to first apply of its record
+    raft_messages: np.ndarray  # (S,) Raft messages sent during the step
+    report_messages: np.ndarray  # (S,) reports sent during the step
+    node_records: dict[int, list[tuple[int, str]]] = field(default_factory=dict)  # node -> (step, digest)
+    events: list[tuple[float, str]] = field(default_factory=list)
+    ins_sigma_window: float = 0.0
+
+
+class Mission:
+    def __init__(self, sc: Scenario) -> None:
+        self.sc = sc
+        n, S = sc.drones, sc.steps + 1
+        seeds = np.random.SeedSequence(sc.seed).spawn(6)
+        rng_motion, rng_gnss, rng_ins, rng_att, rng_keys, self.rng_range = (
+            np.random.default_rng(s) for s in seeds
+        )
+        if sc.motion.kind == "formation":
+            wp = None if sc.motion.waypoints is None else np.array(sc.motion.waypoints, float)
+            self.traj: Trajectory = formation_flight(
+                rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.spacing, sc.motion.speed, wp
+            )
+        else:
+            self.traj = static_swarm(rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.area_size)
+        self.gnss_err = GaussMarkov(sc.gnss.sigma_h, sc.gnss.sigma_v, sc.gnss.tau_s, sc.dt_s).sequence(
+            rng_gnss, S, n
+        )
+        self.grade = ins_grade(sc.ins.grade)
+        self.drift = InsDrift.draw(rng_ins, n, self.grade)
+        spoofs = [
+            Spoof(
+                s.kind,
+                tuple(d - 1 for d in s.drones),
+                s.start_s,
+                s.end_s,
+                s.magnitude,
+                s.rate,
+                tuple(p - 1 for p in s.pivots),
+                s.angle_deg,
+                s.tamper_ranges,
+            )
+            for s in sc.spoof
+        ]
+        outages = [Outage(tuple(d - 1 for d in o.drones), o.start_s, o.end_s) for o in sc.outage]
+        self.timeline = AttackTimeline.build(rng_att, spoofs, outages)
+        self.uwb = UWBRanging(sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob)
+        link = LinkModel(
+            tuple(sc.network.delay_ms), sc.network.loss, sc.network.duplicate, sc.network.reorder
+        )
+        self.cluster = Cluster(
+            n,
+            seed=sc.seed,
+            tick_ms=sc.raft.tick_ms,
+            election_tick=sc.raft.election_tick,
+            heartbeat_tick=sc.raft.heartbeat_tick,
+            network=link,
+            on_apply=self._on_apply,
+        )
+        window = sc.protocol.innovation_window_s
+        self.window_steps = max(1, int(round(window / sc.dt_s)))
+        # An honest innovation over the window: the Gauss-Markov GNSS error's change plus the
+        # INS drift of a fresh integration over the window, per axis (horizontal, vertical).
+        gm = np.sqrt(2 * (1 - np.exp(-window / sc.gnss.tau_s)))
+        drift_axis = ins_sigma(self.grade, window) / np.sqrt(3)
+        self.innovation_sigma = (
+            float(np.hypot(gm * sc.gnss.sigma_h, drift_axis)),
+            float(np.hypot(gm * sc.gnss.sigma_v, drift_axis)),
+        )
+        self.pcfg = ProtocolConfig(
+            n=n,
+            detector=sc.protocol.detector,
+            detector_params=dict(sc.protocol.detector_params),
+            gnss_sigma=(sc.gnss.sigma_h, sc.gnss.sigma_v),
+            range_sigma=sc.ranging.sigma,
+            innovation_gate=sc.protocol.innovation_gate or None,
+            innovation_sigma=self.innovation_sigma,
+        )
+        self.keys = Keyring.generate(n, rng_keys)
+        self.drones = [SwarmDrone(i, self.pcfg, self.keys) for i in range(n)]
+        # INS state: the last position it was aligned to (time, position); it then integrates
+        # the true motion plus its drift.
+        self.ins_base_t = np.zeros(n)
+        self.ins_base_pos = self.traj.positions[0].copy()
+        self.log = self._empty_log(S, n)
+        self.sent_to: dict[int, int | None] = {}
+        self._first_apply: dict[int, float] = {}
+
+    def _empty_log(self, S: int, n: int) -> MissionLog:
+        nan3 = np.full((S, n, 3), np.nan)
+        return MissionLog(
+            scenario=self.sc,
+            t=self.traj.t[:S],
+            truth=self.traj.positions[:S],
+            gnss=nan3.copy(),
+            honest_gnss=nan3.copy(),
+            reported=nan3.copy(),
+            ins_alone=nan3.copy(),
+            spoofed=np.zeros((S, n), bool),
+            outage=np.zeros((S, n), bool),
+            alive=np.zeros((S, n), bool),
+            verified=nan3.copy(),
+            faulty=np.zeros((S, n), bool),
+            missing=np.zeros((S, n), bool),
+            committed=np.zeros(S, bool),
+            status=np.full(S, "skipped", dtype=object),
+            leader=np.zeros(S, int),
+            term=np.zeros(S, int),
+            latency_ms=np.full(S, np.nan),
+            raft_messages=np.zeros(S, int),
+            report_messages=np.zeros(S, int),
+            ins_sigma_window=ins_sigma(self.grade, self.sc.protocol.innovation_window_s),
+        )
+
+    # -- sensing and reporting --------------------------------------------------------------
+    def _ins(self, k: int) -> np.ndarray:
+        """Each drone's INS estimate at step k: aligned at its base, then dead reckoning."""
+        t = self.traj.t[k]
+        kb = np.minimum(np.round(self.ins_base_t / self.sc.dt_s).astype(int), len(self.traj.t) - 1)
+        moved = self.traj.positions[k] - self.traj.positions[kb, np.arange(self.sc.drones)]
+        return self.ins_base_pos + moved + self.drift.error(t - self.ins_base_t)
+
+    def _step(self, k: int) -> None:
+        sc, n, log = self.sc, self.sc.drones, self.log
+        t = self.traj.t[k]
+        truth = self.traj.positions[k]
+        honest = truth + self.gnss_err[k]
+        fix, has_fix, spoofed = self.timeline.gnss(t, truth, honest)
+        ins = self._ins(k)
+        ranges = self.uwb.measure(self.rng_range, truth[None])[0]
+        tamper = self.timeline.tampering(t)
+        if tamper.size:
+            shown = np.where(has_fix[:, None], fix, ins)
+            fake = np.linalg.norm(shown[:, None] - shown[None], axis=2)
+            ranges[tamper] = np.where(np.isnan(ranges[tamper]), np.nan, fake[tamper])
+        self._rows[k] = ranges
+        log.gnss[k] = np.where(has_fix[:, None], fix, np.nan)
+        log.honest_gnss[k] = honest
+        log.spoofed[k], log.outage[k] = spoofed, ~has_fix
+        log.ins_alone[k] = truth + self.drift.error(np.full(n, t))
+        for i in range(n):
+            node = i + 1
+            alive = self.cluster.alive(node)
+            log.alive[k, i] = alive
+            if not alive:
+                continue
+            pos, source = (fix[i], "gnss") if has_fix[i] else (ins[i], "ins")
+            innov = self._innovation(k, i) if has_fix[i] else None
+            report = self.drones[i].make_report(k, pos, source, ranges[i], innov)
+            log.reported[k, i] = pos
+            self._send_report(node, report)
+        dl = sc.protocol.deadline_ms
+        self.cluster.loop.after(dl / 2, self._retry, k)
+        self.cluster.loop.after(dl, self._deadline, k)
+
+    def _innovation(self, k: int, i: int) -> np.ndarray | None:
+        """GNSS-minus-INS innovation over the window: how far the drone's GNSS fix moved in
+        the last window minus how far its INS says it moved (true motion plus the drift of
+        integrating over the window). None without both fixes."""
+        base = k - self.window_steps
+        if base < 0:
+            return None
+        now, then = self.log.gnss[k, i], self.log.gnss[base, i]
+        if not (np.isfinite(now).all() and np.isfinite(then).all()):
+            return None
+        w = self.traj.t[k] - self.traj.t[base]
+        ins_moved = (
+            self.traj.positions[k, i] - self.traj.positions[base, i] + self.drift.error(np.full(1, w))[0]
+        )
+        return (now - then) - ins_moved
+
+    def _send_report(self, node: int, report: Report) -> None:
+        lead = self.cluster.nodes[node].lead if self.cluster.nodes.get(node) else None
+        self.sent_to[node] = lead
+        if lead is None:
+            return
+        self.log.report_messages[report.step] += 1
+        if lead == node:
+            self._receive(node, report.encode())
+        else:
+            self.cluster.send_app(node, lead, self._receive, report.encode())
+
+    def _retry(self, k: int) -> None:
+        """Resend step k's report if the leader did not acknowledge it, or if the leader
+        changed (or became known) since it was sent."""
+        for i in range(self.sc.drones):
+            node = i + 1
+            rn = self.cluster.nodes.get(node)
+            if rn is None or rn.lead is None or k not in self._rows:
+                continue
+            if not np.isfinite(self.log.reported[k, i]).all():
+                continue
+            if (node, k) in self._acked and rn.lead == self.sent_to.get(node):
+                continue
+            source = "gnss" if not self.log.outage[k, i] else "ins"
+            innov = self._innovation(k, i) if source == "gnss" else None
+            report = self.drones[i].make_report(k, self.log.reported[k, i], source, self._rows[k][i], innov)
+            self._send_report(node, report)
+
+    def _receive(self, node: int, data: bytes) -> None:
+        rep = Report.decode(data)
+        drone = self.drones[node - 1]
+        accepted = drone.receive(rep)
+        if accepted:
+            sender = rep.drone + 1
+            if sender == node:
+                self._acked.add((sender, rep.step))
+            else:
+                self.cluster.send_app(node, sender, self._ack, rep.step)
+        if accepted and drone.has_all(rep.step) and self.cluster.leader() == node:
+            self._propose(node, rep.step)
+
+    def _ack(self, node: int, step: int) -> None:
+        self._acked.add((node, step))
+
+    def _deadline(self, k: int) -> None:
+        lead = self.cluster.leader()
+        self.log.leader[k] = lead or 0
+        if lead is None:
+            return
+        self.log.term[k] = self.cluster.nodes[lead].term
+        self._propose(lead, k)
+
+    def _propose(self, lead: int, k: int) -> None:
+        node = self.cluster.nodes[lead]
+        rec = self.drones[lead - 1].verify_step(k, node.term)
+        if rec is not None:
+            self.cluster.propose(rec.encode(), via=lead)
+
+    # -- applying ---------------------------------------------------------------------------
+    def _on_apply(self, node: int, entry: Entry) -> None:
+        if entry.kind == EntryKind.NOOP:
+            return
+        i = node - 1
+        rec = self.drones[i].apply(entry.data)
+        if rec is None:
+            return
+        self.log.node_records.setdefault(node, []).append((rec.step, rec.digest))
+        now = self.cluster.now
+        self._first_apply.setdefault(rec.step, now)
+        # The drone takes its verified position: its INS is aligned to it (for a flagged drone
+        # this is the reset to its recovered position). Not when replaying old records after a
+        # restart.
+        k_now = min(int(now / 1000 / self.sc.dt_s), self.sc.steps)
+        if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - 5:
+            self.ins_base_t[i] = self.traj.t[rec.step]
+            self.ins_base_pos[i] = rec.positions[i]
+
+    # -- faults -----------------------------------------------------------------------------
+    def _fault(self, f) -> None:  # noqa: ANN001 (a FaultConfig)
+        c = self.cluster
+        now = c.now / 1000
+        if f.kind == "crash":
+            if c.alive(f.drone):
+                c.crash(f.drone)
+                self.drones[f.drone - 1] = SwarmDrone(
+                    f.drone - 1, self.pcfg, self.keys
+                )  # volatile state lost
+            self.log.events.append((now, f"drone {f.drone} crashed"))
+        elif f.kind == "crash-leader":
+            lead = c.leader()
+            if lead is not None:
+                c.crash(lead)
+                self.drones[lead - 1] = SwarmDrone(lead - 1, self.pcfg, self.keys)
+            self.log.events.append((now, f"leader {lead} crashed"))
+        elif f.kind == "restart":
+            if not c.alive(f.drone):
+                c.restart(f.drone)
+            self.log.events.append((now, f"drone {f.drone} restarted"))
+        elif f.kind == "partition":
+            c.partition(*f.groups)
+            self.log.events.append((now, f"partition {f.groups}"))
+        elif f.kind == "heal":
+            c.heal()
+            self.log.events.append((now, "network healed"))
+        else:
+            c.set_loss(f.value)
+            self.log.events.append((now, f"loss set to {f.value:.0%}"))
+
+    # -- running ----------------------------------------------------------------------------
+    def run(self, progress: Callable[[int], None] | None = None) -> MissionLog:
+        sc, c = self.sc, self.cluster
+        dt_ms = sc.dt_s * 1000
+        self._rows: dict[int, np.ndarray] = {}
+        self._acked: set[tuple[int, int]] = set()
+        for f in sc.fault:
+            c.loop.at(f.at_s * 1000, self._fault, f)
+        raft0, steps = 0, sc.steps
+        for k in range(steps + 1):
+            c.run(max(0.0, k * dt_ms - c.now))
+            self._step_with_history(k)
+            total = sum(c.sent.values())
+            if k > 0:
+                self.log.raft_messages[k - 1] = total - raft0
+            raft0 = total
+            if progress:
+                progress(1)
+        c.run(dt_ms + 2 * sc.protocol.deadline_ms + 500)
+        self.log.raft_messages[steps] = sum(c.sent.values()) - raft0
+        return self._finish()
+
+    def _step_with_history(self, k: int) -> None:
+        self._rows = {s: r for s, r in self._rows.items() if s >= k - 2}
+        self._step(k)
+
+    def _finish(self) -> MissionLog:
+        log = self.log
+        # The records every node holds are the same (checked by the tests); read them from the
+        # node that applied the most.
+        best = max(self.drones, key=lambda d: len(d.state.records))
+        for k, rec in best.state.records.items():
+            if k >= len(log.t):
+                continue
+            log.committed[k] = True
+            log.verified[k] = rec.positions
+            log.faulty[k] = rec.faulty
+            log.missing[k] = rec.missing
+            log.status[k] = rec.status
+            log.latency_ms[k] = self._first_apply.get(k, np.nan) - k * self.sc.dt_s * 1000
+        log.status = log.status.astype(str)
+        return log
+
+
+def run_mission(sc: Scenario, progress: Callable[[int], None] | None = None) -> MissionLog:
+    return Mission(sc).run(progress)

@@ -1,0 +1,140 @@
+"""A mission scenario: typed, validated configuration (a TOML file maps onto it one to one).
+
+Drone ids are 1..n everywhere in a scenario (as in the simulator). Defaults come from
+FACTS.md: GNSS 1.5/3 m with Gauss-Markov tau 120 s, UWB 0.10 m, drone-grade INS, 10 Hz steps,
+5-10 m/s formation flight at 10-30 m spacing, 150-300 ms election timeouts with 10 ms ticks.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MotionConfig(_Strict):
+    kind: Literal["formation", "static"] = "formation"
+    spacing: float = Field(20.0, gt=0, description="m")
+    speed: float = Field(7.0, ge=0, description="m/s")
+    waypoints: list[tuple[float, float, float]] | None = None
+    area_size: float = Field(100.0, gt=0, description="static cube side, m")
+
+
+class GNSSTimeConfig(_Strict):
+    sigma_h: float = Field(1.5, ge=0)
+    sigma_v: float = Field(3.0, ge=0)
+    tau_s: float = Field(120.0, gt=0, description="Gauss-Markov correlation time")
+
+
+class INSConfig(_Strict):
+    grade: Literal["consumer", "drone-grade", "industrial", "tactical"] = "drone-grade"
+
+
+class RangingTimeConfig(_Strict):
+    sigma: float = Field(0.10, ge=0)
+    max_range: float | None = Field(None, gt=0)
+    nlos_prob: float = Field(0.0, ge=0, le=1)
+
+
+class NetworkConfig(_Strict):
+    delay_ms: tuple[float, float] = (1.0, 3.0)
+    loss: float = Field(0.0, ge=0, le=1)
+    duplicate: float = Field(0.0, ge=0, le=1)
+    reorder: float = Field(0.0, ge=0, le=1)
+
+
+class RaftTimeConfig(_Strict):
+    tick_ms: float = Field(10.0, gt=0)
+    election_tick: int = Field(15, ge=2)
+    heartbeat_tick: int = Field(5, ge=1)
+
+
+class ProtocolTimeConfig(_Strict):
+    detector: str = "joint"
+    detector_params: dict[str, Any] = Field(default_factory=dict)
+    deadline_ms: float = Field(60.0, gt=0, description="leader waits for reports this long")
+    innovation_window_s: float = Field(5.0, gt=0, description="INS prediction window of the gate")
+    innovation_gate: float = Field(25.9, ge=0, description="chi-square 3 dof threshold; 0: off")
+
+
+class SpoofConfig(_Strict):
+    kind: Literal["jump", "drag", "area", "collusion"]
+    drones: list[int] = Field(min_length=1)
+    start_s: float = Field(ge=0)
+    end_s: float | None = None
+    magnitude: float = Field(30.0, ge=0, description="jump or area offset, m")
+    rate: float = Field(0.5, ge=0, description="drag-off rate, m/s")
+    pivots: list[int] = Field(default_factory=list)
+    angle_deg: float = 45.0
+    tamper_ranges: bool = False
+
+
+class OutageConfig(_Strict):
+    drones: list[int] = Field(min_length=1)
+    start_s: float = Field(ge=0)
+    end_s: float | None = None
+
+
+class FaultConfig(_Strict):
+    kind: Literal["crash", "crash-leader", "restart", "partition", "heal", "loss"]
+    at_s: float = Field(ge=0)
+    drone: int | None = None
+    groups: list[list[int]] = Field(default_factory=list)
+    value: float | None = Field(None, ge=0, le=1, description="loss probability")
+
+
+class Scenario(_Strict):
+    name: str = "mission"
+    seed: int = Field(1, ge=0)
+    drones: int = Field(9, ge=4, le=64)
+    duration_s: float = Field(60.0, gt=0)
+    dt_s: float = Field(0.1, gt=0, description="step (FACTS.md: 10 Hz)")
+    motion: MotionConfig = Field(default_factory=MotionConfig)
+    gnss: GNSSTimeConfig = Field(default_factory=GNSSTimeConfig)
+    ins: INSConfig = Field(default_factory=INSConfig)
+    ranging: RangingTimeConfig = Field(default_factory=RangingTimeConfig)
+    network: NetworkConfig = Field(default_factory=NetworkConfig)
+    raft: RaftTimeConfig = Field(default_factory=RaftTimeConfig)
+    protocol: ProtocolTimeConfig = Field(default_factory=ProtocolTimeConfig)
+    spoof: list[SpoofConfig] = Field(default_factory=list)
+    outage: list[OutageConfig] = Field(default_factory=list)
+    fault: list[FaultConfig] = Field(default_factory=list)
+    maps_at_s: list[float] = Field(default_factory=list, description="swarm maps at these times")
+
+    @model_validator(mode="after")
+    def _ids(self) -> Scenario:
+        def check(ids: list[int], where: str) -> None:
+            bad = [i for i in ids if not 1 <= i <= self.drones]
+            if bad:
+                raise ValueError(f"{where}: drone ids must be in 1..{self.drones}, got {bad}")
+
+        for k, s in enumerate(self.spoof):
+            check(s.drones, f"spoof[{k}].drones")
+            check(s.pivots, f"spoof[{k}].pivots")
+            if s.kind == "collusion" and not 1 <= len(s.pivots) <= 3:
+                raise ValueError(f"spoof[{k}].pivots: collusion needs 1 to 3 pivot drones")
+        for k, o in enumerate(self.outage):
+            check(o.drones, f"outage[{k}].drones")
+        for k, f in enumerate(self.fault):
+            if f.kind in ("crash", "restart") and f.drone is None:
+                raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
+            if f.drone is not None:
+                check([f.drone], f"fault[{k}].drone")
+            if f.kind == "partition":
+                if not f.groups:
+                    raise ValueError(f"fault[{k}].groups: a partition needs groups")
+                for g in f.groups:
+                    check(g, f"fault[{k}].groups")
+            if f.kind == "loss" and f.value is None:
+                raise ValueError(f"fault[{k}].value: loss needs a value")
+        if self.raft.heartbeat_tick >= self.raft.election_tick:
+            raise ValueError("raft.heartbeat_tick: must be below election_tick")
+        return self
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration_s / self.dt_s))

@@ -1,0 +1,178 @@
+"""Missions in the simulated swarm: the protocol over Raft, end to end."""
+
+import json
+
+import numpy as np
+import pytest
+
+from swarmraft.experiments.config import ConfigError
+from swarmraft.experiments.mission import error_series, load_scenario, run_and_write, summarize
+from swarmraft.protocol import Keyring, ProtocolConfig, Report, StepRecord, SwarmDrone
+from swarmraft.sim.mission import run_mission
+from swarmraft.sim.scenario import Scenario
+
+ACCEPTANCE = {
+    "drones": 9,
+    "duration_s": 30,
+    "seed": 1,
+    "network": {"loss": 0.1},
+    "protocol": {"detector": "joint"},
+    "spoof": [{"kind": "jump", "drones": [2, 5, 7], "start_s": 10, "magnitude": 30}],
+    "fault": [{"kind": "crash-leader", "at_s": 20}],
+}
+
+
+@pytest.fixture(scope="module")
+def crash_under_attack():
+    log = run_mission(Scenario(**ACCEPTANCE))
+    errors = error_series(log)
+    return log, errors, summarize(log, errors)
+
+
+def test_every_node_holds_identical_records(crash_under_attack):
+    log, _, summary = crash_under_attack
+    assert summary["records_identical_on_all_nodes"]
+    steps = [[s for s, _ in recs] for recs in log.node_records.values()]
+    for s in steps:
+        assert s == sorted(set(s))  # exactly one record per step, in step order
+    by_step: dict[int, set[str]] = {}
+    for recs in log.node_records.values():
+        for step, digest in recs:
+            by_step.setdefault(step, set()).add(digest)
+    assert all(len(d) == 1 for d in by_step.values())
+
+
+def test_mission_continues_across_the_leader_crash(crash_under_attack):
+    log, _, summary = crash_under_attack
+    k_crash = 200
+    assert log.committed[k_crash + 10 :].all()
+    # skipped steps around the crash are bounded by the election time (<= 300 ms timeout +
+    # a deadline): at most 5 steps of 100 ms
+    around = ~log.committed[k_crash - 5 : k_crash + 10]
+    assert around.sum() <= 5
+    assert "leader 1 crashed" in " ".join(summary["events"]) or "crashed" in " ".join(summary["events"])
+
+
+def test_attacked_drones_after_detection_stay_within_three_bounds(crash_under_attack):
+    _, _, summary = crash_under_attack
+    assert len(summary["detections"]) == 3
+    for d in summary["detections"]:
+        assert d["detected"] and d["time_to_detect_s"] <= 1.0
+        assert d["mean_error_after_m"] <= 3 * d["mean_bound_after_m"]
+
+
+def test_summary_reports_messages_against_the_raft_minimum(crash_under_attack):
+    _, _, summary = crash_under_attack
+    assert summary["raft_minimum_per_step"] == 16
+    assert summary["raft_messages_per_committed_step"] >= 16
+
+
+def test_drag_off_is_detected_before_ten_metres():
+    sc = Scenario(
+        drones=9,
+        duration_s=35,
+        seed=2,
+        protocol={"detector": "joint"},
+        spoof=[{"kind": "drag", "drones": [4], "start_s": 10, "rate": 0.5}],
+    )
+    log = run_mission(sc)
+    summary = summarize(log, error_series(log))
+    (d,) = summary["detections"]
+    assert d["detected"] and d["reported_error_at_detection_m"] < 10.0
+    assert d["time_to_detect_s"] < 20.0
+    # without the temporal gate the snapshot detector sees it only much later, if at all
+    off = run_mission(
+        sc.model_copy(update={"protocol": sc.protocol.model_copy(update={"innovation_gate": 0})})
+    )
+    (d_off,) = summarize(off, error_series(off))["detections"]
+    assert not d_off["detected"] or d_off["time_to_detect_s"] > d["time_to_detect_s"]
+
+
+def test_jammed_drone_tracked_by_the_swarm():
+    sc = Scenario(
+        drones=9,
+        duration_s=30,
+        seed=4,
+        ins={"grade": "consumer"},
+        outage=[{"drones": [3], "start_s": 5, "end_s": 30}],
+    )
+    log = run_mission(sc)
+    (o,) = summarize(log, error_series(log))["outages"]
+    assert o["mean_error_swarmraft_m"] < o["mean_error_ins_alone_m"]
+    assert o["mean_error_swarmraft_m"] < 5.0
+
+
+def test_silent_drone_is_estimated_from_ranges():
+    sc = Scenario(drones=9, duration_s=12, seed=3, fault=[{"kind": "crash", "at_s": 5, "drone": 4}])
+    log = run_mission(sc)
+    k = np.arange(70, 120)
+    assert log.missing[k, 3][log.committed[k]].all()
+    err = np.linalg.norm(log.verified[k, 3] - log.truth[k, 3], axis=1)
+    assert np.nanmean(err) < 5.0
+
+
+def test_same_seed_same_mission(tmp_path):
+    sc = Scenario(drones=5, duration_s=3, seed=9, spoof=[{"kind": "jump", "drones": [2], "start_s": 1}])
+    run_and_write(sc, tmp_path / "a")
+    run_and_write(sc, tmp_path / "b")
+    assert (tmp_path / "a" / "steps.csv").read_bytes() == (tmp_path / "b" / "steps.csv").read_bytes()
+    s = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert s["steps"] == 31
+
+
+def test_step_record_round_trip_and_dedup():
+    keys = Keyring.generate(4, np.random.default_rng(0))
+    d = SwarmDrone(0, ProtocolConfig(n=4), keys)
+    rec = StepRecord(
+        3,
+        2,
+        np.arange(12.0).reshape(4, 3),
+        np.array([0, 1, 0, 0], bool),
+        np.array([0, 0, 0, 1], bool),
+        "ok",
+        "joint",
+        "abc",
+    )
+    assert StepRecord.decode(rec.encode()).encode() == rec.encode()
+    assert d.apply(rec.encode()) is not None
+    again = StepRecord(3, 3, np.zeros((4, 3)), np.zeros(4, bool), np.zeros(4, bool), "ok", "joint", "def")
+    assert d.apply(again.encode()) is None  # a second record for step 3 is ignored
+    later = StepRecord(6, 3, np.zeros((4, 3)), np.zeros(4, bool), np.zeros(4, bool), "ok", "joint", "x")
+    d.apply(later.encode())
+    assert d.state.skipped == [0, 1, 2, 4, 5] and d.state.ignored == 1
+
+
+def test_reports_are_signed():
+    keys = Keyring.generate(3, np.random.default_rng(1))
+    leader = SwarmDrone(0, ProtocolConfig(n=3), keys)
+    r = SwarmDrone(1, ProtocolConfig(n=3), keys).make_report(0, np.zeros(3), "gnss", np.zeros(3), None)
+    assert leader.receive(Report.decode(r.encode()))
+    forged = Report(0, 2, np.ones(3), "gnss", np.zeros(3), None, r.signature)
+    assert not leader.receive(forged)
+
+
+def test_bad_scenarios_are_one_line_errors(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text('drones = 9\n[[spoof]]\nkind = "jump"\ndrones = [12]\nstart_s = 1\n')
+    with pytest.raises(ConfigError, match=r"spoof\[0\]\.drones: drone ids must be in 1\.\.9"):
+        load_scenario(f)
+    f.write_text("drones = 2\n")
+    with pytest.raises(ConfigError, match="^s.toml: drones: "):
+        load_scenario(f)
+    f.write_text("colour = 1\n")
+    with pytest.raises(ConfigError, match="colour: unknown parameter"):
+        load_scenario(f)
+    f.write_text("[network]\nloss = 2\n")
+    with pytest.raises(ConfigError, match=r"network\.loss"):
+        load_scenario(f)
+    with pytest.raises(ConfigError, match="no file"):
+        load_scenario(tmp_path / "nope.toml")
+
+
+def test_shipped_scenarios_validate():
+    from pathlib import Path
+
+    files = sorted(Path(__file__).parent.parent.glob("scenarios/*.toml"))
+    assert len(files) >= 8
+    for f in files:
+        load_scenario(f)

@@ -20,7 +20,11 @@ TARGET_S = 10.0
 def main() -> None:
     for detector in ("joint", "paper"):
         sc = Scenario(
-            name="bench", drones=17, duration_s=60, seed=1, network={"loss": 0.05},
+            name="bench",
+            drones=17,
+            duration_s=60,
+            seed=1,
+            network={"loss": 0.05},
             protocol={"detector": detector},
             spoof=[{"kind": "jump", "drones": [2, 5, 9, 14], "start_s": 10, "magnitude": 30}],
             fault=[{"kind": "crash-leader", "at_s": 30}],
@@ -29,9 +33,11 @@ def main() -> None:
         t0 = time.perf_counter()
         log = run_mission(sc)
         wall = time.perf_counter() - t0
-        print(f"60 s mission, 17 drones, detector {detector}: wall {wall:.1f} s, "
-              f"{int(log.committed.sum())}/{len(log.t)} steps committed; "
-              f"target <= {TARGET_S:g} s: {'MET' if wall <= TARGET_S else 'NOT MET'}")
+        print(
+            f"60 s mission, 17 drones, detector {detector}: wall {wall:.1f} s, "
+            f"{int(log.committed.sum())}/{len(log.t)} steps committed; "
+            f"target <= {TARGET_S:g} s: {'MET' if wall <= TARGET_S else 'NOT MET'}"
+        )
 
 
 if __name__ == "__main__":

@@ -93,6 +93,8 @@ class SwarmDrone:
     # -- leader -----------------------------------------------------------------------------
     def receive(self, report: Report) -> bool:
         """Keep a report for its step if its signature verifies and the step is still open."""
+        if report.drone in self.inbox.get(report.step, {}):
+            return True  # a resend of a report already verified and kept
         if report.step <= self.state.last_step or not self.keys.verify(report):
             self.rejected += report.step > self.state.last_step
             return False

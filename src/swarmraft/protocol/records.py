@@ -1,33 +1,27 @@
 """What SwarmRaft drones exchange: signed `Report`s to the leader, and the `StepRecord` the
-leader proposes to the Raft log. Both encode to compact JSON bytes; a record carries the
-digest of the reports it was computed from."""
+leader proposes to the Raft log. Both encode to compact binary (a fixed header and float64
+arrays); a record carries the digest of the reports it was computed from."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import struct
 from dataclasses import dataclass
 
 import numpy as np
 
-
-def _floats(a: np.ndarray | None) -> list | None:
-    if a is None:
-        return None
-    return [None if not np.isfinite(v) else float(v) for v in np.asarray(a, float).ravel()]
-
-
-def _array(v: list | None, shape: tuple[int, ...]) -> np.ndarray | None:
-    if v is None:
-        return None
-    return np.array([np.nan if x is None else x for x in v], dtype=float).reshape(shape)
+_SOURCES = ("gnss", "ins")
+_REPORT_HEAD = struct.Struct("<iiBBH")  # step, drone, source, has innovation, n
+_RECORD_HEAD = struct.Struct("<iqH")  # step, term, n
 
 
 @dataclass(frozen=True)
 class Report:
     """Drone ``drone``'s report for ``step``: its position (GNSS fix, or INS estimate when
     GNSS is lost), the source, its ranges to every drone (nan = not measured) and its
-    GNSS-minus-INS innovation (None without a fix). ``signature`` covers everything else."""
+    GNSS-minus-INS innovation (None without a fix). ``signature`` (Ed25519, 64 bytes) covers
+    everything else. Encoded as little-endian binary: a header, then float64 arrays."""
 
     step: int
     drone: int  # 0-based index
@@ -39,34 +33,29 @@ class Report:
 
     def body(self) -> bytes:
         """The signed bytes."""
-        return json.dumps(
-            {
-                "k": self.step,
-                "d": self.drone,
-                "p": _floats(self.position),
-                "s": self.source,
-                "r": _floats(self.ranges),
-                "i": _floats(self.innovation),
-            },
-            separators=(",", ":"),
-        ).encode()
+        inn = self.innovation is not None
+        head = _REPORT_HEAD.pack(self.step, self.drone, _SOURCES.index(self.source), inn, len(self.ranges))
+        arrays = [np.asarray(self.position, "<f8"), np.asarray(self.ranges, "<f8")]
+        if inn:
+            arrays.append(np.asarray(self.innovation, "<f8"))
+        return head + b"".join(a.tobytes() for a in arrays)
 
     def encode(self) -> bytes:
-        return self.body() + b"|" + self.signature.hex().encode()
+        return self.body() + self.signature
 
     @classmethod
     def decode(cls, data: bytes) -> Report:
-        body, _, sig = data.rpartition(b"|")
-        d = json.loads(body)
-        n = len(d["r"])
+        step, drone, src, inn, n = _REPORT_HEAD.unpack_from(data)
+        size = _REPORT_HEAD.size + 8 * (3 + n + 3 * inn)
+        vals = np.frombuffer(data, "<f8", count=3 + n + 3 * inn, offset=_REPORT_HEAD.size)
         return cls(
-            d["k"],
-            d["d"],
-            _array(d["p"], (3,)),
-            d["s"],
-            _array(d["r"], (n,)),
-            _array(d["i"], (3,)),
-            bytes.fromhex(sig.decode()),
+            step,
+            drone,
+            vals[:3].copy(),
+            _SOURCES[src],
+            vals[3 : 3 + n].copy(),
+            vals[3 + n :].copy() if inn else None,
+            bytes(data[size:]),
         )
 
 
@@ -87,34 +76,26 @@ class StepRecord:
 
     def encode(self) -> bytes:
         n = len(self.faulty)
-        return json.dumps(
-            {
-                "k": self.step,
-                "t": self.term,
-                "p": _floats(self.positions),
-                "f": [bool(x) for x in self.faulty],
-                "m": [bool(x) for x in self.missing],
-                "s": self.status,
-                "det": self.detector,
-                "h": self.digest,
-                "n": n,
-            },
-            separators=(",", ":"),
-        ).encode()
+        text = json.dumps([self.status, self.detector, self.digest]).encode()
+        return (
+            _RECORD_HEAD.pack(self.step, self.term, n)
+            + np.asarray(self.positions, "<f8").tobytes()
+            + np.packbits(self.faulty).tobytes()
+            + np.packbits(self.missing).tobytes()
+            + text
+        )
 
     @classmethod
     def decode(cls, data: bytes) -> StepRecord:
-        d = json.loads(data)
-        return cls(
-            d["k"],
-            d["t"],
-            _array(d["p"], (d["n"], 3)),
-            np.array(d["f"], bool),
-            np.array(d["m"], bool),
-            d["s"],
-            d["det"],
-            d["h"],
-        )
+        step, term, n = _RECORD_HEAD.unpack_from(data)
+        off = _RECORD_HEAD.size
+        pos = np.frombuffer(data, "<f8", count=3 * n, offset=off).reshape(n, 3).copy()
+        off += 24 * n
+        nb = (n + 7) // 8
+        faulty = np.unpackbits(np.frombuffer(data, np.uint8, count=nb, offset=off))[:n].astype(bool)
+        missing = np.unpackbits(np.frombuffer(data, np.uint8, count=nb, offset=off + nb))[:n].astype(bool)
+        status, detector, digest = json.loads(data[off + 2 * nb :])
+        return cls(step, term, pos, faulty, missing, status, detector, digest)
 
 
 def reports_digest(reports: list[Report]) -> str:

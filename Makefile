@@ -35,6 +35,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_paper.py
 	$(BIN)/python benchmarks/bench_detectors.py
 	$(BIN)/python benchmarks/bench_raft.py
+	$(BIN)/python benchmarks/bench_mission.py
 
 clean:
 	rm -rf $(VENV) results

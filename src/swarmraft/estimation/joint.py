@@ -129,6 +129,10 @@ def joint_estimate(
     measured by others to the untrusted ones, and priors (T, n, 3; nan = none) where given.
     ``x0``: a start (e.g. the previous solution when the trusted set shrinks by one); by
     default closed-form multilateration."""
+    if prior is not None:
+        # a prior only where the position must come from ranges (a trusted drone has its GNSS),
+        # so a stale or wrong prior cannot pull the trusted geometry
+        prior = np.where(trusted[..., None], np.nan, prior)
     if x0 is None:
         x0 = initial_positions(reported, ranges, trusted, prior)
     gnss_w = trusted.astype(float)

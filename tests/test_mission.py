@@ -176,3 +176,24 @@ def test_shipped_scenarios_validate():
     assert len(files) >= 8
     for f in files:
         load_scenario(f)
+
+
+@pytest.mark.parametrize(
+    "spoof",
+    [
+        {"kind": "area", "drones": [2, 6, 9], "start_s": 2, "magnitude": 40},
+        {"kind": "collusion", "drones": [2, 6], "start_s": 2, "pivots": [1], "angle_deg": 120},
+        {"kind": "jump", "drones": [4], "start_s": 2, "magnitude": 25, "tamper_ranges": True},
+    ],
+)
+def test_spoofing_over_time_is_flagged(spoof):
+    sc = Scenario(drones=12, duration_s=6, seed=6, spoof=[spoof])
+    log = run_mission(sc)
+    k = np.arange(35, 60)
+    # a victim moved less than a snapshot can see (e.g. near the pivot of a rotation) is not
+    # expected to be flagged
+    offset = np.linalg.norm(log.gnss[k] - log.truth[k], axis=2).min(axis=0)
+    victims = [d - 1 for d in spoof["drones"] if offset[d - 1] > 15.0]
+    assert victims
+    flagged = log.faulty[np.ix_(k, victims)][log.committed[k]]
+    assert flagged.mean() > 0.9

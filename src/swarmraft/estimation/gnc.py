@@ -41,9 +41,9 @@ def gnc_estimate(
     range_sigma: float,
     c_gnss: float = 4.0,
     c_range: float = 4.0,
-    mu_factor: float = 1.4,
+    mu_factor: float = 2.0,
     max_outer: int = 60,
-    inner: int = 2,
+    inner: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust joint estimate by graduated non-convexity: all GNSS reports and all ranges,
     Geman-McClure weights relaxed from nearly quadratic (large mu) to the true robust loss
@@ -78,6 +78,8 @@ def gnc_estimate(
 class JointParams(NoiseParams):
     c_gnss: float = Field(4.0, gt=0, description="GNC inlier bound, whitened GNSS residual")
     c_range: float = Field(4.0, gt=0, description="GNC inlier bound, whitened range residual")
+    mu_factor: float = Field(2.0, gt=1, description="GNC: divide mu by this each round (1.4 in Yang et al.)")
+    inner: int = Field(1, ge=1, description="GNC: Gauss-Newton iterations per round")
     flag_chi2: float = Field(CHI2_3DOF_999, gt=0, description="flag GNSS residual^2 above")
     p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual test")
     f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
@@ -90,7 +92,15 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
     n = reported.shape[1]
     noise = NoiseModel.of(batch, p, "joint")
     x, gnss_w, range_w = gnc_estimate(
-        reported, ranges, noise.gnss_cov, noise.range_sigma, p.c_gnss, p.c_range
+        reported,
+        ranges,
+        noise.gnss_cov,
+        noise.range_sigma,
+        p.c_gnss,
+        p.c_range,
+        p.mu_factor,
+        max_outer=60,
+        inner=p.inner,
     )
     G_half = np.linalg.cholesky(np.linalg.inv(noise.gnss_cov)).T
     rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)

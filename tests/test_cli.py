@@ -170,3 +170,10 @@ def test_compare_and_curves(tmp_path):
     assert (tmp_path / "cur" / "roc.png").exists()
     bad = CliRunner().invoke(main, ["compare", "--attacks", "teleport", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "unknown attack 'teleport'" in bad.output
+
+
+def test_cli_attack_names_match_the_config():
+    from swarmraft.cli import ATTACK_NAMES
+    from swarmraft.experiments.config import ATTACKS
+
+    assert ATTACK_NAMES == list(ATTACKS)

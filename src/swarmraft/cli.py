@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -165,15 +164,11 @@ def _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, e
     """A validated SweepConfig from a preset, an optional TOML file and command-line flags
     (flags override the file, the file overrides the preset)."""
     from swarmraft.experiments import build_config
+    from swarmraft.experiments.config import read_toml
 
     settings: dict[str, Any] = {}
     if config_file is not None:
-        try:
-            settings = tomllib.loads(config_file.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"--config: no file {config_file}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"--config {config_file}: not valid TOML ({exc})") from None
+        settings = read_toml(config_file, "--config")
         preset = settings.pop("preset", preset)
     overrides = {
         "n": _int_list(n_text, "--n"),
@@ -187,6 +182,7 @@ def _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, e
 
 
 PRESET = click.Choice(["reference", "realistic"])
+ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
 
 
 @main.command()
@@ -218,9 +214,7 @@ PRESET = click.Choice(["reference", "realistic"])
 )
 @click.option(
     "--attack",
-    type=click.Choice(
-        ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
-    ),
+    type=click.Choice(ATTACK_NAMES),
     help="attack [default jump]",
 )
 @click.option("--workers", type=int, help="local worker processes [default: all cores]")
@@ -404,9 +398,6 @@ def check(results) -> None:
         + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
     )
     sys.exit(1 if bad else 0)
-
-
-ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
 
 
 @main.command("compare")

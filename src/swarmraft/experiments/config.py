@@ -5,6 +5,8 @@ Bad input is a one-line ``ConfigError`` naming the field (``gnss.sigma_h: ...``)
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -167,6 +169,17 @@ class SweepConfig(_Strict):
                 fs = [f for f in fs if f in set(self.f)]
             out += [(n, f) for f in fs if n - f >= self.attack.min_honest]
         return out
+
+
+def read_toml(path: Path, flag: str) -> dict[str, Any]:
+    """A TOML file's contents; a missing or malformed file is a one-line ConfigError naming
+    the command-line flag that gave it."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{flag}: no file {path}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{flag} {path}: not valid TOML ({exc})") from None
 
 
 def preset_defaults(preset: str) -> dict[str, Any]:

@@ -4,7 +4,6 @@ table, a summary and the numbers the figures need."""
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ from pydantic import ValidationError
 from swarmraft import __version__
 from swarmraft.estimation.bounds import gnss_covariance, swarm_crb
 from swarmraft.estimation.registry import one_line
-from swarmraft.experiments.config import ConfigError
+from swarmraft.experiments.config import ConfigError, read_toml
 from swarmraft.experiments.tables import write_rows
 from swarmraft.sim.mission import MissionLog, run_mission
 from swarmraft.sim.scenario import Scenario
@@ -55,12 +54,7 @@ STEP_COLUMNS = (
 def load_scenario(path: str | Path, **overrides: Any) -> Scenario:
     """A scenario from a TOML file; a bad file is a one-line ConfigError naming the field."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"--scenario: no file {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"--scenario {path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "--scenario")
     data.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return Scenario(**data)

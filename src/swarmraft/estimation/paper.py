@@ -15,6 +15,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from swarmraft.estimation.joint import trusted_estimate
+from swarmraft.estimation.noise import NoiseModel, NoiseParams
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration, solve_ranges
@@ -39,6 +41,11 @@ class PaperParams(BaseModel):
     )
     tie: Literal["honest", "faulty"] = Field("honest", description="a zero vote sum counts as")
     min_anchors: int = Field(3, ge=1)
+    recovery: Literal["reference", "joint"] = Field(
+        "reference",
+        description="stage 2: the reference code's solver, or the joint estimate (closed-form "
+        "start, Gauss-Newton, noise weights, geometry check; no re-marking)",
+    )
 
 
 def report_distances(reported: np.ndarray) -> np.ndarray:
@@ -132,6 +139,23 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
     T, n = reported.shape[:2]
     votes = pairwise_votes(reported, ranges, p.tau)
     flagged0 = votes < 0 if p.tie == "honest" else votes <= 0
+    if p.recovery == "joint":
+        noise = NoiseModel.of(batch, NoiseParams(), "paper")
+        positions, status = trusted_estimate(
+            reported,
+            ranges,
+            ~flagged0,
+            noise.gnss_cov,
+            noise.range_sigma,
+            prior=batch.prior,
+            prior_sigma=batch.prior_sigma,
+        )
+        return VerdictBatch(
+            positions=positions,
+            faulty=flagged0,
+            status=status,
+            diagnostics={"votes": votes, "flagged_by_vote": flagged0},
+        )
     dists = anchor_distances(ranges)
     measured = ~np.isnan(dists) & ~np.eye(n, dtype=bool)
 

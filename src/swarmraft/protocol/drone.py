@@ -65,6 +65,7 @@ class SwarmDrone:
         self.keys = keys
         self.state = Applied()
         self.inbox: dict[int, dict[int, Report]] = {}
+        self.last_seen: dict[int, int] = {}  # drone -> last step it reported
         self.rejected = 0
         get_detector(config.detector)
 
@@ -99,10 +100,15 @@ class SwarmDrone:
             self.rejected += report.step > self.state.last_step
             return False
         self.inbox.setdefault(report.step, {})[report.drone] = report
+        self.last_seen[report.drone] = max(self.last_seen.get(report.drone, -1), report.step)
         return True
 
-    def has_all(self, step: int) -> bool:
-        return len(self.inbox.get(step, {})) == self.config.n
+    def has_all(self, step: int, recent: int = 10) -> bool:
+        """Whether every drone heard from in the last ``recent`` steps has reported for
+        ``step`` (a silent drone does not hold the step up beyond its first deadlines)."""
+        got = self.inbox.get(step, {})
+        expected = [d for d, k in self.last_seen.items() if k >= step - recent]
+        return len(got) == self.config.n or (bool(expected) and all(d in got for d in expected))
 
     def verify_step(self, step: int, term: int) -> StepRecord | None:
         """The leader's verdict for a step from the reports it holds (None if it has none,

@@ -34,8 +34,8 @@ from pydantic import Field
 
 from swarmraft.estimation.joint import (
     joint_estimate,
-    passes_residual_tests,
     residual_statistics,
+    tests_pass,
     trusted_estimate,
 )
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
@@ -99,8 +99,8 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
     if owner.size:
         x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
-        passed = passes_residual_tests(x, reported[owner], ranges[owner], masks, noise, p.p_fa)
-        total = residual_statistics(x, reported[owner], ranges[owner], masks, noise)[2]
+        _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
+        passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
     trusted = np.zeros((T, n), dtype=bool)
     suspects = np.zeros((T, n), dtype=bool)
     status = np.full(T, "ok", dtype=object)

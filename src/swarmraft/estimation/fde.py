@@ -14,8 +14,8 @@ from pydantic import Field
 from swarmraft.estimation.joint import (
     chi2_quantile,
     joint_estimate,
-    passes_residual_tests,
     residual_statistics,
+    tests_pass,
     trusted_estimate,
 )
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
@@ -56,9 +56,9 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
         )
         x_all = np.zeros_like(reported) if x_all is None else x_all
         x_all[active] = x
-        per, _, total, dof = residual_statistics(x, reported[active], ranges[active], tr, noise)
+        per, gnss_q, total, dof = residual_statistics(x, reported[active], ranges[active], tr, noise)
         stat[active] = total
-        failed = ~passes_residual_tests(x, reported[active], ranges[active], tr, noise, p.p_fa)
+        failed = ~tests_pass(gnss_q, total, dof, tr, p.p_fa)
         f_max = (n - 1) // 2 if p.f_max is None else p.f_max
         can = (tr.sum(axis=1) > p.min_trusted) & ((~tr).sum(axis=1) < f_max)
         go = failed & can

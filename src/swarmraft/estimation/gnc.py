@@ -102,7 +102,7 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         max_outer=60,
         inner=p.inner,
     )
-    G_half = np.linalg.cholesky(np.linalg.inv(noise.gnss_cov)).T
+    G_half = noise.whitener
     rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)
     own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
     bad_ranges = ((range_w < 0.5) & own).sum(axis=2) > 0.5 * own.sum(axis=2)

@@ -41,6 +41,11 @@ class NoiseModel:
         floor = p.min_sigma
         return cls(gnss_covariance(max(h, floor), max(v, floor)), max(float(rs), floor))
 
+    @property
+    def whitener(self) -> np.ndarray:
+        """W with W^T W = gnss_cov^-1: W e is a whitened GNSS error."""
+        return np.linalg.cholesky(np.linalg.inv(self.gnss_cov)).T
+
     def los_variance(self, u: np.ndarray) -> np.ndarray:
         """GNSS variance along unit vectors u (..., 3)."""
         return np.einsum("...i,ij,...j->...", u, self.gnss_cov, u)

@@ -174,6 +174,9 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "drones": n,
         "steps": S,
         "detector": sc.protocol.detector,
+        "detector_params": {
+            k: (round(v, 4) if isinstance(v, float) else v) for k, v in log.detector_params.items()
+        },
         "committed_steps": committed,
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),

@@ -23,7 +23,9 @@ class RaftLog:
 
     # -- reading --------------------------------------------------------------------------
     def last_index(self) -> int:
-        return self.offset + len(self.unstable) - 1 if self.unstable else self.storage.last_index()
+        # offset is always one past the persisted prefix the log builds on: storage's end when
+        # nothing is unstable, so this needs no storage call
+        return self.offset + len(self.unstable) - 1
 
     def term(self, index: int) -> int | None:
         """Term of entry ``index`` (0 for index 0), None if the log does not reach it."""
@@ -32,7 +34,7 @@ class RaftLog:
         if self.unstable and index >= self.offset:
             pos = index - self.offset
             return self.unstable[pos].term if pos < len(self.unstable) else None
-        if index > self.storage.last_index():
+        if index > self.last_index():
             return None
         return self.storage.term(index)
 
@@ -135,7 +137,7 @@ class RaftLog:
             self.offset = index + 1
 
     def stable_last(self) -> int:
-        return self.offset - 1 if self.unstable else self.storage.last_index()
+        return self.offset - 1
 
     def next_committed(self) -> list[Entry]:
         """Committed, persisted entries not yet applied."""

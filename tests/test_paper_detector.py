@@ -127,16 +127,21 @@ def reference_algorithm(rep, D, tau=0.01, eps=3.0):
     return ver, flags
 
 
-@pytest.mark.parametrize("n,f", [(3, 1), (5, 2), (7, 3), (9, 4)])
-def test_reference_settings_reproduce_the_reference_code(n, f):
-    rng = np.random.default_rng(n)
-    T = 60
+def reference_trials(n, f, T, seed):
+    """The paper's experiment drawn directly: truth, reports with f jumps, exact ranges."""
+    rng = np.random.default_rng(seed)
     truth = rng.uniform(0, 100, (T, n, 3))
     rep = truth.copy()
     for t in range(T):
         idx = rng.choice(n, f, replace=False)
         rep[t, idx] += rng.uniform(-30, 30, (f, 3))
-    D = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3)
+    return truth, rep, np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3)
+
+
+@pytest.mark.parametrize("n,f", [(3, 1), (5, 2), (7, 3), (9, 4)])
+def test_reference_settings_reproduce_the_reference_code(n, f):
+    T = 60
+    truth, rep, D = reference_trials(n, f, T, n)
     v = verify_batch(SnapshotBatch(rep, D))
     close = 0
     for t in range(T):
@@ -191,14 +196,7 @@ def test_unmeasured_pairs_abstain():
 
 @pytest.mark.parametrize("n,f", [(7, 3), (11, 5)])
 def test_vote_with_the_new_recovery_is_exact_on_reference_data(n, f):
-    rng = np.random.default_rng(n + 100)
-    T = 200
-    truth = rng.uniform(0, 100, (T, n, 3))
-    rep = truth.copy()
-    for t in range(T):
-        idx = rng.choice(n, f, replace=False)
-        rep[t, idx] += rng.uniform(-30, 30, (f, 3))
-    D = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3)
+    truth, rep, D = reference_trials(n, f, 200, n + 100)
     ref = verify_batch(SnapshotBatch(rep, D, range_sigma=0.0))
     new = verify_batch(SnapshotBatch(rep, D, range_sigma=0.0), recovery="joint")
     err_ref = np.linalg.norm(ref.positions - truth, axis=2).mean()

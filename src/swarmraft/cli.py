@@ -183,6 +183,8 @@ def _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, e
 
 PRESET = click.Choice(["reference", "realistic"])
 ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
+WORKERS = click.option("--workers", type=int, help="local worker processes [default: all cores]")
+SCHEDULER = click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local' for a LocalCluster.")
 
 
 @main.command()
@@ -217,8 +219,8 @@ ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-
     type=click.Choice(ATTACK_NAMES),
     help="attack [default jump]",
 )
-@click.option("--workers", type=int, help="local worker processes [default: all cores]")
-@click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local' for a LocalCluster.")
+@WORKERS
+@SCHEDULER
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
@@ -422,8 +424,8 @@ def check(results) -> None:
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
 @click.option("--trials", type=int, default=1000, show_default=True, help="trials per cell")
 @click.option("--seed", type=int, help="master seed [default 2025]")
-@click.option("--workers", type=int, help="local worker processes [default: all cores]")
-@click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local'.")
+@WORKERS
+@SCHEDULER
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
@@ -544,7 +546,7 @@ def calibrate(preset, n_text, trials, seed) -> None:
     help="folder for everything the demo writes",
 )
 @click.option("--trials", type=int, default=2000, show_default=True, help="trials per cell")
-@click.option("--workers", type=int, help="local worker processes [default: all cores]")
+@WORKERS
 @click.option(
     "--scenario",
     "scenario_file",

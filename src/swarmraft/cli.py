@@ -796,9 +796,9 @@ def print_mission_summary(summary: dict) -> None:
             )
         else:
             console.print(f"  {d['kind']} on drone {d['drone']}: [red]not detected[/]")
+    console.print(f"  consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms")
     console.print(
-        f"  consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms; "
-        f"Raft messages per committed step {s['raft_messages_per_committed_step']} "
+        f"  Raft messages per committed step {s['raft_messages_per_committed_step']} "
         f"(minimum 2(n-1) = {s['raft_minimum_per_step']}), reports per step {s['reports_per_step']}"
     )
     for o in s["outages"]:

@@ -772,6 +772,10 @@ def mission_figures(result, out: Path) -> list[Path]:
     ]
 
 
+def _m(v: float | None) -> str:
+    return "n/a" if v is None else f"{v} m"
+
+
 def print_mission_summary(summary: dict) -> None:
     s = summary
     console.print(
@@ -783,16 +787,16 @@ def print_mission_summary(summary: dict) -> None:
         f"{'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}"
     )
     console.print(
-        f"  honest drones: raw GNSS {s['honest_error_gnss_m']} m, "
-        f"SwarmRaft {s['honest_error_swarmraft_m']} m, "
-        f"bound {s['honest_bound_m']} m; false positives {s['honest_false_positive_rate']:.2%}"
+        f"  honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
+        f"SwarmRaft {_m(s['honest_error_swarmraft_m'])}, "
+        f"bound {_m(s['honest_bound_m'])}; false positives {s['honest_false_positive_rate']:.2%}"
     )
     for d in s["detections"]:
         if d["detected"]:
             console.print(
                 f"  {d['kind']} on drone {d['drone']}: detected after {d['time_to_detect_s']} s "
                 f"(its GNSS then {d['reported_error_at_detection_m']} m off); afterwards error "
-                f"{d['mean_error_after_m']} m, bound {d['mean_bound_after_m']} m"
+                f"{_m(d['mean_error_after_m'])}, bound {_m(d['mean_bound_after_m'])}"
             )
         else:
             console.print(f"  {d['kind']} on drone {d['drone']}: [red]not detected[/]")
@@ -804,8 +808,8 @@ def print_mission_summary(summary: dict) -> None:
     for o in s["outages"]:
         console.print(
             f"  GNSS outage of drone {o['drone']} ({o['from_s']}-{o['to_s']} s): SwarmRaft "
-            f"{o['mean_error_swarmraft_m']} m, INS alone {o['mean_error_ins_alone_m']} m, "
-            f"bound {o['mean_bound_m']} m"
+            f"{_m(o['mean_error_swarmraft_m'])}, INS alone {_m(o['mean_error_ins_alone_m'])}, "
+            f"bound {_m(o['mean_bound_m'])}"
         )
     for e in s["events"]:
         console.print(f"  event: {e}")

@@ -94,6 +94,14 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
     }
 
 
+def _mean(values: np.ndarray) -> float | None:
+    """Mean of the finite values, rounded to mm; None when there are none (exact data has no
+    bound, a drone may have no committed position)."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return round(float(v.mean()), 3) if v.size else None
+
+
 def _runs(mask: np.ndarray) -> int:
     """Longest run of True."""
     best = cur = 0
@@ -126,7 +134,9 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                 k = k0 + int(hit[0])
                 after = np.arange(k, S)
                 after = after[log.committed[after] & log.spoofed[after, i]]
-                ratio = errors["swarmraft"][after, i] / errors["bound"][after, i]
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    ratio = errors["swarmraft"][after, i] / errors["bound"][after, i]
+                ratio = ratio[np.isfinite(ratio)]
                 detections.append(
                     {
                         "spoof": k_sp,
@@ -135,14 +145,10 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                         "detected": True,
                         "time_to_detect_s": round(float(log.t[k] - sp.start_s), 3),
                         "reported_error_at_detection_m": round(float(errors["gnss"][k, i]), 3),
-                        "mean_error_after_m": round(float(np.nanmean(errors["swarmraft"][after, i])), 3)
-                        if after.size
-                        else None,
-                        "mean_bound_after_m": round(float(np.nanmean(errors["bound"][after, i])), 3)
-                        if after.size
-                        else None,
-                        "p95_error_to_bound_after": round(float(np.nanpercentile(ratio, 95)), 3)
-                        if after.size and np.isfinite(ratio).any()
+                        "mean_error_after_m": _mean(errors["swarmraft"][after, i]),
+                        "mean_bound_after_m": _mean(errors["bound"][after, i]),
+                        "p95_error_to_bound_after": round(float(np.percentile(ratio, 95)), 3)
+                        if ratio.size
                         else None,
                     }
                 )
@@ -159,9 +165,9 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                     "drone": d,
                     "from_s": o.start_s,
                     "to_s": o.end_s,
-                    "mean_error_swarmraft_m": round(float(np.nanmean(errors["swarmraft"][k0:k1, i])), 3),
-                    "mean_error_ins_alone_m": round(float(np.nanmean(errors["ins_alone"][k0:k1, i])), 3),
-                    "mean_bound_m": round(float(np.nanmean(errors["bound"][k0:k1, i])), 3),
+                    "mean_error_swarmraft_m": _mean(errors["swarmraft"][k0:k1, i]),
+                    "mean_error_ins_alone_m": _mean(errors["ins_alone"][k0:k1, i]),
+                    "mean_bound_m": _mean(errors["bound"][k0:k1, i]),
                 }
             )
     hon_mask = honest[None, :] & log.committed[:, None] & log.alive
@@ -181,9 +187,9 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),
         "records_identical_on_all_nodes": bool(agree),
-        "honest_error_gnss_m": round(float(np.nanmean(errors["gnss"][:, honest])), 3),
-        "honest_error_swarmraft_m": round(float(np.nanmean(errors["swarmraft"][:, honest])), 3),
-        "honest_bound_m": round(float(np.nanmean(errors["bound"][:, honest])), 3),
+        "honest_error_gnss_m": _mean(errors["gnss"][:, honest]),
+        "honest_error_swarmraft_m": _mean(errors["swarmraft"][:, honest]),
+        "honest_bound_m": _mean(errors["bound"][:, honest]),
         "honest_false_positive_rate": round(fp, 5),
         "detections": detections,
         "outages": outages,

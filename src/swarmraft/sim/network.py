@@ -32,6 +32,8 @@ class LinkModel:
 
     def delays(self, rng: random.Random) -> list[float]:
         """Delivery delays of the copies that arrive (empty: lost)."""
+        if not (self.loss or self.duplicate or self.reorder):  # the common, clean link
+            return [rng.uniform(*self.delay_ms)]
         copies = 2 if self.duplicate and rng.random() < self.duplicate else 1
         out = []
         for _ in range(copies):
@@ -74,6 +76,7 @@ class Network:
         return True
 
     def delays(self, rng: random.Random, a: int, b: int) -> list[float]:
-        if not self.connected(a, b):
+        if (self.cuts or self.groups) and not self.connected(a, b):
             return []
-        return self.link(a, b).delays(rng)
+        link = self.links.get((a, b), self.default) if self.links else self.default
+        return link.delays(rng)

@@ -55,7 +55,8 @@ class EventLoop:
         heapq.heappush(self._queue, (time, self._seq, action, args))
 
     def after(self, delay: float, action: Callable[..., None], *args: Any) -> None:
-        self.at(self.now + delay, action, *args)
+        self._seq += 1
+        heapq.heappush(self._queue, (self.now + delay, self._seq, action, args))
 
     def step(self) -> bool:
         if not self._queue:

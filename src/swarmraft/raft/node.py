@@ -115,8 +115,9 @@ class RaftNode:
         )
 
     def ready(self) -> Ready | None:
-        if not self.has_ready():
-            return None
+        return self._ready() if self.has_ready() else None
+
+    def _ready(self) -> Ready:
         hs = HardState(self.term, self.vote, self.log.committed)
         return Ready(
             hard_state=hs if hs != self._persisted_hs else None,
@@ -302,7 +303,12 @@ class RaftNode:
         elif entries:
             pr.next = entries[-1].index + 1
 
-    def _maybe_commit(self) -> bool:
+    def _maybe_commit(self, acked: int | None = None) -> bool:
+        """Advance the commit index to the highest index a quorum holds, if it is of the
+        current term. ``acked``: the index a follower just acknowledged; nothing can change
+        if it is not above the commit index (most answers, under steady load)."""
+        if acked is not None and acked <= self.log.committed:
+            return False
         matches = sorted([self.log.last_index(), *(pr.match for pr in self.prs.values())], reverse=True)
         n = matches[self._quorum() - 1]
         # The commit rule: only an entry of the current term commits by counting replicas.
@@ -329,7 +335,7 @@ class RaftNode:
                 pr.match = m.index
                 pr.probe = False
             pr.next = max(pr.next, pr.match + 1)
-            if self._maybe_commit():
+            if self._maybe_commit(pr.match):
                 for p in self.prs:
                     self._send_append(p)
             elif pr.match < self.log.last_index():

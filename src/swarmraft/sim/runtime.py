@@ -157,7 +157,8 @@ class Cluster:
         node = self.nodes[i]
         assert node is not None
         changed = False
-        while (rd := node.ready()) is not None:
+        while node.has_ready():
+            rd = node._ready()
             if rd.hard_state is not None or rd.entries or rd.committed:
                 changed = True
                 self.storage[i].save(rd.hard_state, rd.entries)

@@ -19,8 +19,9 @@ from swarmraft.estimation.bounds import CHI2_3DOF_999
 from swarmraft.estimation.clique import CliqueParams, clique_detector
 from swarmraft.estimation.joint import (
     joint_estimate,
-    passes_residual_tests,
+    residual_statistics,
     residuals,
+    tests_pass,
     trusted_estimate,
     weighted_gauss_newton,
 )
@@ -126,11 +127,13 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         prior=batch.prior,
         prior_sigma=batch.prior_sigma,
     )
-    # GNC can settle on a wrong partition; where its answer fails the residual tests, take the
-    # clique detector's answer for that trial if that one passes them.
+    # GNC can settle on a wrong partition. Where its answer fails the residual tests or flags
+    # more than f_max drones, the clique detector's answer for that trial is taken if it
+    # passes the tests, or if it flags no more than f_max drones and fits better per degree
+    # of freedom (an honest report far out in its own noise can make both fail the tests).
     f_max = (n - 1) // 2 if p.f_max is None else p.f_max
-    bad = ~passes_residual_tests(positions, reported, ranges, ~faulty, noise, p.p_fa)
-    bad |= faulty.sum(axis=1) > f_max
+    _, gq, total, dof = residual_statistics(positions, reported, ranges, ~faulty, noise)
+    bad = ~tests_pass(gq, total, dof, ~faulty, p.p_fa) | (faulty.sum(axis=1) > f_max)
     if bad.any():
         sub = SnapshotBatch(
             reported[bad],
@@ -141,11 +144,18 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
             batch.prior_sigma,
         )
         alt = clique_detector(
-            sub, CliqueParams(**p.model_dump(include=set(NoiseParams.model_fields)), p_fa=p.p_fa)
+            sub, CliqueParams(**p.model_dump(include=set(NoiseParams.model_fields)), p_fa=p.p_fa, f_max=f_max)
         )
-        alt_ok = (alt.status == "ok") & passes_residual_tests(
-            alt.positions, reported[bad], ranges[bad], ~alt.faulty, noise, p.p_fa
+        _, agq, atotal, adof = residual_statistics(
+            alt.positions, reported[bad], ranges[bad], ~alt.faulty, noise
         )
+        alt_pass = tests_pass(agq, atotal, adof, ~alt.faulty, p.p_fa)
+        own_fit = total[bad] / np.maximum(dof[bad], 1)
+        alt_fit = atotal / np.maximum(adof, 1)
+        own_admissible = faulty[bad].sum(axis=1) <= f_max
+        alt_admissible = alt.faulty.sum(axis=1) <= f_max
+        better = alt_admissible & (~own_admissible | (alt_fit < own_fit))
+        alt_ok = (alt.status == "ok") & (alt_pass | better)
         idx = np.flatnonzero(bad)[alt_ok]
         positions[idx], faulty[idx], status[idx] = (
             alt.positions[alt_ok],

@@ -1,0 +1,8 @@
+"""The ``swarmraft`` command. Every subcommand prints where its outputs went; bad input is a
+one-line error naming the problem (exit status 2). Commands live in modules by topic and
+register themselves on `main` when imported here."""
+
+from swarmraft.cli import demo, missions, raft, sweeps  # noqa: F401  (register the commands)
+from swarmraft.cli.app import ATTACK_NAMES, main
+
+__all__ = ["ATTACK_NAMES", "main"]

@@ -1,0 +1,3 @@
+from swarmraft.cli import main
+
+main()

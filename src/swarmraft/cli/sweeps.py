@@ -1,0 +1,450 @@
+"""Sweep commands: sweep, figure, check, compare, calibrate, curves, detectors."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.table import Table
+
+from swarmraft.cli.app import (
+    ATTACK_NAMES,
+    PRESET,
+    SCHEDULER,
+    WORKERS,
+    _int_list,
+    _params,
+    _summary_table,
+    _sweep_config,
+    console,
+    main,
+    progress_bar,
+)
+
+
+@main.command()
+@click.option(
+    "--preset",
+    type=PRESET,
+    default="reference",
+    show_default=True,
+    help="reference: the paper's code; realistic: FACTS.md noise.",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML file with sweep settings (flags given here override it).",
+)
+@click.option("--n", "n_text", help="swarm sizes: 3,5,7 or 3-17 or 3-17:2 [default 3-17:2]")
+@click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
+@click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1 (as the paper).")
+@click.option("--trials", type=int, help="trials per cell [default 10000]")
+@click.option("--seed", type=int, help="master seed [default 2025]")
+@click.option("--detector", help="registered detector name [default paper]")
+@click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="detector parameter, repeatable (e.g. --param tau=0.3).",
+)
+@click.option(
+    "--attack",
+    type=click.Choice(ATTACK_NAMES),
+    help="attack [default jump]",
+)
+@WORKERS
+@SCHEDULER
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="results folder [default results/<preset>]; an existing one is resumed.",
+)
+def sweep(
+    preset,
+    config_file,
+    n_text,
+    f_text,
+    diagonal,
+    trials,
+    seed,
+    detector,
+    params,
+    attack,
+    workers,
+    scheduler,
+    out,
+) -> None:
+    """Monte Carlo sweep over swarm size n and attacker count f.
+
+    Writes cells.csv (one row per (n, f)), trials.csv (one row per trial) and run.json
+    (config, seed, version). Cells already in --out are not recomputed.
+    """
+    from swarmraft.experiments import run_sweep
+
+    config = _sweep_config(
+        preset,
+        config_file,
+        n_text,
+        f_text,
+        diagonal,
+        trials,
+        seed,
+        {
+            "detector": detector,
+            "detector_params": _params(params) or None,
+            "attack": {"name": attack} if attack else None,
+        },
+    )
+    out = out or Path("results") / config.preset
+    cells = config.cells()
+    console.print(
+        f"sweep: preset {config.preset}, detector {config.detector}, attack "
+        f"{config.attack.name}, {len(cells)} cells x {config.trials} trials, "
+        f"seed {config.seed} -> {out}"
+    )
+    prog, start = progress_bar("sweep")
+    with prog:
+        result = run_sweep(config, out, workers=workers, scheduler=scheduler, progress=start)
+    if result.reused:
+        console.print(f"reused {len(result.reused)} finished cells from {out}")
+    console.print(_summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
+    if line := _calibration_line(out):
+        console.print(line)
+    console.print(f"done in {result.seconds:.1f} s on {result.executor}")
+    for p in result.paths:
+        console.print(f"  wrote {p}")
+
+
+def _calibration_line(out: Path) -> str | None:
+    """The calibrated thresholds of a results folder, in one line (None if none ran)."""
+    cal = json.loads((Path(out) / "run.json").read_text()).get("calibration", {})
+    if not cal:
+        return None
+    taus = [c["tau"] for c in cal.values()]
+    eps = [c["epsilon"] for c in cal.values()]
+    return (
+        f"thresholds calibrated from honest runs (paper III.E, mu + 3 sigma) for n = "
+        f"{', '.join(sorted(cal, key=int))}: tau {min(taus):.2f}-{max(taus):.2f} m, "
+        f"epsilon {min(eps):.2f}-{max(eps):.2f} m"
+    )
+
+
+def _load_results(results: Path) -> tuple[dict, dict, dict]:
+    from swarmraft.experiments.tables import read_table
+
+    if not (results / "cells.csv").exists():
+        raise FileNotFoundError(f"{results}: no cells.csv here; run `swarmraft sweep --out {results}` first")
+    run = json.loads((results / "run.json").read_text())
+    trials = read_table(results / "trials.csv") if (results / "trials.csv").exists() else {}
+    return read_table(results / "cells.csv"), trials, run
+
+
+@main.command()
+@click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "all"]))
+@click.argument("results", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), help="image file (default RESULTS/figures/KIND.png)")
+@click.option(
+    "--view",
+    type=click.Choice(["projections", "3d"]),
+    default="projections",
+    show_default=True,
+    help="recovery picture: XY and XZ projections, or 3-D.",
+)
+def figure(kind, results, out, view) -> None:
+    """Draw a figure from a results folder written by `swarmraft sweep`.
+
+    scaling: mean error against n (log axis); distribution: box plots of per-trial errors;
+    recovery: the paper's picture for (n, f) = (6, 2), (11, 5), (16, 7) drawn with the
+    folder's config and seed; all: the three.
+    """
+    for path in draw_figures(kind, results, out, view):
+        console.print(f"wrote {path}")
+
+
+def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = "projections") -> list[Path]:
+    from swarmraft import viz
+    from swarmraft.experiments import SweepConfig
+    from swarmraft.experiments.cases import recovery_cases
+
+    cells, trials, run = _load_results(Path(results))
+    kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
+    paths = []
+    for k in kinds:
+        target = out if (out and kind != "all") else Path(results) / "figures" / f"{k}.png"
+        if k == "scaling":
+            paths.append(viz.scaling(cells, target))
+        elif k == "distribution":
+            title = f"preset {cells['preset'][0]}, detector {cells['detector'][0]}"
+            paths.append(viz.distribution(trials, target, title))
+        else:
+            config = SweepConfig(**run["config"])
+            paths.append(viz.recovery(recovery_cases(config), target, view))
+    return paths
+
+
+@main.command()
+@click.argument("results", type=click.Path(file_okay=False, path_type=Path))
+def check(results) -> None:
+    """Compare a reference sweep with the paper's published means (FACTS.md).
+
+    Passes when every recovered mean is within 3 standard errors of the published one and
+    every baseline within 0.3 m; exits 1 otherwise.
+    """
+    from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, compare_published
+
+    cells, _, run = _load_results(Path(results))
+    if run["config"]["preset"] != "reference":
+        raise ValueError(
+            f"{results}: the published numbers are for --preset reference, "
+            f"this folder is {run['config']['preset']!r}"
+        )
+    rows = compare_published(cells)
+    if not rows:
+        raise ValueError(f"{results}: no cell with n = 2f+1 for f = 1..8 to compare")
+    t = Table(title=f"{results} against the published means", title_justify="left")
+    for col in (
+        "n (f)",
+        "trials",
+        "recovered m",
+        "sem",
+        "published m",
+        "z",
+        "baseline m",
+        "published",
+        "ok",
+    ):
+        t.add_column(col, justify="right")
+    for r in rows:
+        t.add_row(
+            f"{r['n']} ({r['f']})",
+            str(r["trials"]),
+            f"{r['recovered']:.3f}",
+            f"{r['sem']:.3f}",
+            f"{r['published']:.3f}",
+            f"{r['z']:+.2f}",
+            f"{r['baseline']:.2f}",
+            f"{r['published_baseline']:.1f}",
+            "yes" if r["ok"] else "[red]NO[/]",
+        )
+    console.print(t)
+    bad = [r for r in rows if not r["ok"]]
+    console.print(
+        f"criteria: |z| <= {MAX_Z}, baseline within {MAX_BASELINE_GAP} m: "
+        + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
+    )
+    sys.exit(1 if bad else 0)
+
+
+@main.command("compare")
+@click.option("--preset", type=PRESET, default="realistic", show_default=True)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML file with sweep settings (flags given here override it).",
+)
+@click.option(
+    "--detectors",
+    default="paper,clique,fde,joint",
+    show_default=True,
+    help="comma-separated registered detectors",
+)
+@click.option(
+    "--attacks", default="jump", show_default=True, help=f"comma-separated attacks: {', '.join(ATTACK_NAMES)}"
+)
+@click.option("--n", "n_text", default="9,13,17", show_default=True, help="swarm sizes")
+@click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
+@click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
+@click.option("--trials", type=int, default=1000, show_default=True, help="trials per cell")
+@click.option("--seed", type=int, help="master seed [default 2025]")
+@WORKERS
+@SCHEDULER
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="results folder [default results/compare-<preset>]",
+)
+def compare_cmd(
+    preset, config_file, detectors, attacks, n_text, f_text, diagonal, trials, seed, workers, scheduler, out
+) -> None:
+    """Run several detectors on identical trials and compare them.
+
+    Writes compare.csv (one row per attack, detector and (n, f)), each sweep's folder under
+    OUT/<attack>/<detector>, and one figure per metric in OUT/figures: error of attacked and
+    honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
+    identification rates.
+    """
+    from swarmraft import viz
+    from swarmraft.experiments.compare import COMPARE_METRICS, run_compare
+
+    dets = [d.strip() for d in detectors.split(",") if d.strip()]
+    atks = [a.strip() for a in attacks.split(",") if a.strip()]
+    for a in atks:
+        if a not in ATTACK_NAMES:
+            raise ValueError(f"--attacks: unknown attack {a!r}; known: {', '.join(ATTACK_NAMES)}")
+    config = _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    out = out or Path("results") / f"compare-{config.preset}"
+    console.print(
+        f"compare: {', '.join(dets)} on {', '.join(atks)}, preset {config.preset}, "
+        f"{len(config.cells())} cells x {config.trials} trials -> {out}"
+    )
+    prog, start = progress_bar("compare")
+    with prog:
+        table, _ = run_compare(config, dets, atks, out, workers=workers, scheduler=scheduler, progress=start)
+    t = Table(title="detectors on identical trials", title_justify="left")
+    for col in (
+        "attack",
+        "detector",
+        "n",
+        "f",
+        "attacked m",
+        "honest m",
+        "efficiency",
+        "detect",
+        "false pos",
+        "identified",
+        "unidentifiable",
+    ):
+        t.add_column(col, justify="right")
+    for i in range(len(table["n"])):
+        eff = table["attacked_efficiency"][i]
+        t.add_row(
+            str(table["attack"][i]),
+            str(table["detector"][i]),
+            str(table["n"][i]),
+            str(table["f"][i]),
+            f"{table['recovered_mean'][i]:.3g}",
+            f"{table['honest_mean'][i]:.3g}",
+            "-" if np.isnan(eff) else f"{eff:.2f}",
+            f"{table['detection_rate'][i]:.1%}",
+            f"{table['false_positive_rate'][i]:.1%}",
+            f"{table['identification_rate'][i]:.1%}",
+            f"{table['status_unidentifiable'][i]:.1%}",
+        )
+    console.print(t)
+    console.print(f"wrote {out / 'compare.csv'}")
+    for metric, (label, log) in COMPARE_METRICS.items():
+        if np.isnan(np.asarray(table[metric], float)).all():
+            continue
+        console.print(f"wrote {viz.compare(table, metric, label, log, out / 'figures' / f'{metric}.png')}")
+
+
+@main.command()
+@click.option(
+    "--preset",
+    type=PRESET,
+    default="realistic",
+    show_default=True,
+)
+@click.option("--n", "n_text", default="17", show_default=True, help="swarm sizes")
+@click.option("--trials", type=int, default=2000, show_default=True)
+@click.option("--seed", type=int, default=2025, show_default=True)
+def calibrate(preset, n_text, trials, seed) -> None:
+    """Calibrate tau and epsilon (mu_e + 3 sigma_e of honest residuals, paper III.E)."""
+    from swarmraft.experiments import build_config
+    from swarmraft.experiments.calibration import calibrate_cell
+
+    config = build_config(preset, seed=seed, calibration_trials=trials)
+    t = Table(title=f"calibration, preset {preset}, {trials} honest snapshots", title_justify="left")
+    for col in (
+        "n",
+        "tau m",
+        "pair mu",
+        "pair sigma",
+        "epsilon m",
+        "recovery mu",
+        "recovery sigma",
+    ):
+        t.add_column(col, justify="right")
+    for n in _int_list(n_text, "--n") or ():
+        c = calibrate_cell(config, n)
+        t.add_row(
+            str(n),
+            f"{c.tau:.3f}",
+            f"{c.pair_mean:.3f}",
+            f"{c.pair_std:.3f}",
+            f"{c.epsilon:.3f}",
+            f"{c.recovery_mean:.3f}",
+            f"{c.recovery_std:.3f}",
+        )
+    console.print(t)
+
+
+@main.command()
+@click.option("--preset", type=PRESET, default="realistic", show_default=True)
+@click.option("--detectors", default="paper,clique,fde,joint", show_default=True)
+@click.option("--n", "n", type=click.IntRange(min=4), default=13, show_default=True, help="swarm size")
+@click.option("--f", "f", type=click.IntRange(min=1), default=3, show_default=True, help="attackers")
+@click.option(
+    "--trials", type=click.IntRange(min=10), default=200, show_default=True, help="trials per point"
+)
+@click.option(
+    "--false-alarm",
+    type=click.FloatRange(0, 1),
+    default=0.01,
+    show_default=True,
+    help="false-alarm rate for the detection-against-offset curve",
+)
+@click.option("--offsets", default="1,2,4,6,8,10,15,20,30,50", show_default=True, help="spoof offsets, m")
+@click.option(
+    "--roc-offset",
+    type=click.FloatRange(min=0),
+    default=10.0,
+    show_default=True,
+    help="spoof offset of the ROC trials, m",
+)
+@click.option("--seed", type=int, default=2025, show_default=True)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("results/curves"),
+    show_default=True,
+)
+def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, seed, out) -> None:
+    """Detection curves per detector: ROC (detection against false-alarm rate as the
+    threshold moves) and detection probability against spoof offset at a fixed false-alarm
+    rate. Writes curves.csv, roc.png and detection_vs_offset.png."""
+    from swarmraft import viz
+    from swarmraft.experiments import build_config
+    from swarmraft.experiments.curves import THRESHOLDS, detection_curves
+    from swarmraft.experiments.tables import write_rows
+
+    if f > (n - 1) // 2:
+        raise ValueError(f"--f: {f} attackers need n >= {2 * f + 1}")
+    dets = [d.strip() for d in detectors.split(",") if d.strip()]
+    try:
+        offs = [float(v) for v in offsets.split(",")]
+    except ValueError:
+        raise click.BadParameter(
+            f"expected numbers like 1,2,5, got {offsets!r}", param_hint="--offsets"
+        ) from None
+    config = build_config(preset, n=(n,), f=(f,), trials=trials, seed=seed)
+    total = sum(len(THRESHOLDS[d][1]) + len(offs) for d in dets if d in THRESHOLDS)
+    prog, start = progress_bar("curves", "points")
+    with prog:
+        points = detection_curves(config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0))
+    cols = ("detector", "kind", "threshold", "offset", "false_alarm", "detection")
+    write_rows(out / "curves.csv", cols, [p.__dict__ for p in points])
+    title = f"preset {preset}, n = {n}, f = {f}, {trials} trials per point"
+    console.print(f"wrote {out / 'curves.csv'}")
+    console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}")
+    console.print(
+        f"wrote {viz.detection_vs_offset(points, out / 'detection_vs_offset.png', false_alarm, title)}"
+    )
+
+
+@main.command()
+def detectors() -> None:
+    """List the registered detectors and their parameters."""
+    from swarmraft.estimation import detector_names, get_detector
+
+    for name in detector_names():
+        det = get_detector(name)
+        console.print(f"[bold]{name}[/]: {det.summary}")
+        for field, info in det.params.model_fields.items():
+            console.print(f"    {field} = {info.default!r}  {info.description or ''}")

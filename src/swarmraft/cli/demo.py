@@ -103,8 +103,8 @@ def demo(out, trials, workers, scenario_file) -> None:
         )
     console.print(t)
     written.append(folder / "compare.csv")
-    for metric, (label, log) in COMPARE_METRICS.items():
-        written.append(viz.compare(table, metric, label, log, folder / "figures" / f"{metric}.png"))
+    for metric, (label, log, ref) in COMPARE_METRICS.items():
+        written.append(viz.compare(table, metric, label, log, folder / "figures" / f"{metric}.png", ref))
     console.rule("[bold]written[/]")
     for p in written:
         console.print(f"  {p}")

@@ -328,10 +328,12 @@ def compare_cmd(
         )
     console.print(t)
     console.print(f"wrote {out / 'compare.csv'}")
-    for metric, (label, log) in COMPARE_METRICS.items():
+    for metric, (label, log, ref) in COMPARE_METRICS.items():
         if np.isnan(np.asarray(table[metric], float)).all():
             continue
-        console.print(f"wrote {viz.compare(table, metric, label, log, out / 'figures' / f'{metric}.png')}")
+        console.print(
+            f"wrote {viz.compare(table, metric, label, log, out / 'figures' / f'{metric}.png', ref)}"
+        )
 
 
 @main.command()

@@ -14,14 +14,14 @@ from swarmraft.experiments.metrics import CELL_COLUMNS
 from swarmraft.experiments.sweep import SweepResult, run_sweep
 from swarmraft.experiments.tables import write_rows
 
-#: metric column -> (label, log axis)
+#: metric column -> (label, log axis, reference line)
 COMPARE_METRICS = {
-    "recovered_mean": ("mean error of attacked drones, m", True),
-    "honest_mean": ("mean error of honest drones, m", True),
-    "attacked_efficiency": ("efficiency, attacked drones (1 = Cramér-Rao bound)", True),
-    "detection_rate": ("detection rate", False),
-    "false_positive_rate": ("false-positive rate", False),
-    "identification_rate": ("exact identification rate", False),
+    "recovered_mean": ("mean error of attacked drones, m", True, None),
+    "honest_mean": ("mean error of honest drones, m", True, None),
+    "attacked_efficiency": ("efficiency, attacked drones (1 = Cramér-Rao bound)", True, 1.0),
+    "detection_rate": ("detection rate", False, None),
+    "false_positive_rate": ("false-positive rate", False, None),
+    "identification_rate": ("exact identification rate", False, None),
 }
 
 

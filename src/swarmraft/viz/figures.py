@@ -196,8 +196,16 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
     return _save(fig, path)
 
 
-def compare(table: Mapping[str, np.ndarray], metric: str, label: str, log: bool, path: Path) -> Path:
-    """One metric over the (n, f) cells, a line per detector, a panel per attack."""
+def compare(
+    table: Mapping[str, np.ndarray],
+    metric: str,
+    label: str,
+    log: bool,
+    path: Path,
+    reference: float | None = None,
+) -> Path:
+    """One metric over the (n, f) cells, a line per detector (grouped bars when there is a
+    single cell), a panel per attack; ``reference`` draws a horizontal line (e.g. efficiency 1)."""
     attacks = list(dict.fromkeys(np.asarray(table["attack"]).tolist()))
     detectors = list(dict.fromkeys(np.asarray(table["detector"]).tolist()))
     fig, axes = plt.subplots(1, len(attacks), figsize=(5.5 * len(attacks), 4.3), squeeze=False)
@@ -214,7 +222,22 @@ def compare(table: Mapping[str, np.ndarray], metric: str, label: str, log: bool,
             ys = np.array([val.get(c, np.nan) for c in cells])
             if log:
                 ys = np.where(ys > 0, ys, np.nan)
-            ax.plot(xs, ys, "o-", label=det)
+            if len(cells) == 1:
+                k = detectors.index(det)
+                bar = ax.bar(k, ys[0], width=0.7, label=det, color=f"C{k}")
+                ax.bar_label(bar, fmt="%.3g", fontsize=8)
+            else:
+                ax.plot(xs, ys, "o-", label=det)
+        if reference is not None:
+            ax.axhline(reference, color="k", ls="--", lw=1)
+        if len(cells) == 1:
+            ax.set_xticks(range(len(detectors)), detectors)
+            ax.set_xlabel(f"detector, (n, f) = ({cells[0][0]}, {cells[0][1]})")
+            ax.set_title(f"attack: {attack}", fontsize=10)
+            if log:
+                ax.set_yscale("log")
+            ax.grid(True, axis="y", which="both", ls=":", alpha=0.6)
+            continue
         ax.set_xticks(xs, [f"({n},{f})" for n, f in cells], rotation=45 if len(cells) > 8 else 0)
         ax.set_xlabel("(n, f)")
         ax.set_title(f"attack: {attack}", fontsize=10)

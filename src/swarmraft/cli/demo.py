@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.table import Table
 
 from swarmraft.cli.app import (
     WORKERS,
@@ -15,7 +14,7 @@ from swarmraft.cli.app import (
     progress_bar,
 )
 from swarmraft.cli.missions import mission_figures, print_mission_summary
-from swarmraft.cli.sweeps import _calibration_line, draw_figures
+from swarmraft.cli.sweeps import _calibration_line, draw_figures, report_compare
 
 
 @main.command()
@@ -74,8 +73,7 @@ def demo(out, trials, workers, scenario_file) -> None:
             console.print(line)
         written += result.paths + draw_figures("all", folder)
         console.print(f"{preset} done in {result.seconds:.1f} s on {result.executor}")
-    from swarmraft import viz
-    from swarmraft.experiments.compare import COMPARE_METRICS, run_compare
+    from swarmraft.experiments.compare import run_compare
 
     folder = out / "compare"
     n_trials = max(1, trials // 8)
@@ -88,23 +86,7 @@ def demo(out, trials, workers, scenario_file) -> None:
         table, _ = run_compare(
             config, ["paper", "clique", "fde", "joint"], ["jump"], folder, workers=workers, progress=start
         )
-    t = Table(title="mean error (m) and efficiency against the Cramér-Rao bound", title_justify="left")
-    for col in ("detector", "attacked m", "honest m", "raw GNSS m", "efficiency", "detected", "false pos"):
-        t.add_column(col, justify="right")
-    for i in range(len(table["n"])):
-        t.add_row(
-            str(table["detector"][i]),
-            f"{table['recovered_mean'][i]:.2f}",
-            f"{table['honest_mean'][i]:.2f}",
-            f"{table['honest_baseline_mean'][i]:.2f}",
-            f"{table['attacked_efficiency'][i]:.2f}",
-            f"{table['detection_rate'][i]:.1%}",
-            f"{table['false_positive_rate'][i]:.1%}",
-        )
-    console.print(t)
-    written.append(folder / "compare.csv")
-    for metric, (label, log, ref) in COMPARE_METRICS.items():
-        written.append(viz.compare(table, metric, label, log, folder / "figures" / f"{metric}.png", ref))
+    written += report_compare(table, folder, "mean error (m) and efficiency against the Cramér-Rao bound")
     console.rule("[bold]written[/]")
     for p in written:
         console.print(f"  {p}")

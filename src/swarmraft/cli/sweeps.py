@@ -240,6 +240,54 @@ def check(results) -> None:
     sys.exit(1 if bad else 0)
 
 
+def report_compare(table: dict, out: Path, title: str) -> list[Path]:
+    """Print a comparison table and draw one figure per metric into ``out/figures``; returns
+    what was written (compare.csv, written by run_compare, included)."""
+    from swarmraft import viz
+    from swarmraft.experiments.compare import COMPARE_METRICS
+
+    t = Table(title=title, title_justify="left")
+    for col in (
+        "attack",
+        "detector",
+        "n",
+        "f",
+        "attacked m",
+        "honest m",
+        "raw GNSS m",
+        "efficiency",
+        "detect",
+        "false pos",
+        "identified",
+        "unidentifiable",
+    ):
+        t.add_column(col, justify="right")
+    for i in range(len(table["n"])):
+        eff = table["attacked_efficiency"][i]
+        t.add_row(
+            str(table["attack"][i]),
+            str(table["detector"][i]),
+            str(table["n"][i]),
+            str(table["f"][i]),
+            f"{table['recovered_mean'][i]:.3g}",
+            f"{table['honest_mean'][i]:.3g}",
+            f"{table['honest_baseline_mean'][i]:.3g}",
+            "-" if np.isnan(eff) else f"{eff:.2f}",
+            f"{table['detection_rate'][i]:.1%}",
+            f"{table['false_positive_rate'][i]:.1%}",
+            f"{table['identification_rate'][i]:.1%}",
+            f"{table['status_unidentifiable'][i]:.1%}",
+        )
+    console.print(t)
+    written = [Path(out) / "compare.csv"]
+    for metric, (label, log, ref) in COMPARE_METRICS.items():
+        if not np.isnan(np.asarray(table[metric], float)).all():
+            written.append(
+                viz.compare(table, metric, label, log, Path(out) / "figures" / f"{metric}.png", ref)
+            )
+    return written
+
+
 @main.command("compare")
 @click.option("--preset", type=PRESET, default="realistic", show_default=True)
 @click.option(
@@ -279,8 +327,7 @@ def compare_cmd(
     honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
     identification rates.
     """
-    from swarmraft import viz
-    from swarmraft.experiments.compare import COMPARE_METRICS, run_compare
+    from swarmraft.experiments.compare import run_compare
 
     dets = [d.strip() for d in detectors.split(",") if d.strip()]
     atks = [a.strip() for a in attacks.split(",") if a.strip()]
@@ -296,44 +343,8 @@ def compare_cmd(
     prog, start = progress_bar("compare")
     with prog:
         table, _ = run_compare(config, dets, atks, out, workers=workers, scheduler=scheduler, progress=start)
-    t = Table(title="detectors on identical trials", title_justify="left")
-    for col in (
-        "attack",
-        "detector",
-        "n",
-        "f",
-        "attacked m",
-        "honest m",
-        "efficiency",
-        "detect",
-        "false pos",
-        "identified",
-        "unidentifiable",
-    ):
-        t.add_column(col, justify="right")
-    for i in range(len(table["n"])):
-        eff = table["attacked_efficiency"][i]
-        t.add_row(
-            str(table["attack"][i]),
-            str(table["detector"][i]),
-            str(table["n"][i]),
-            str(table["f"][i]),
-            f"{table['recovered_mean'][i]:.3g}",
-            f"{table['honest_mean'][i]:.3g}",
-            "-" if np.isnan(eff) else f"{eff:.2f}",
-            f"{table['detection_rate'][i]:.1%}",
-            f"{table['false_positive_rate'][i]:.1%}",
-            f"{table['identification_rate'][i]:.1%}",
-            f"{table['status_unidentifiable'][i]:.1%}",
-        )
-    console.print(t)
-    console.print(f"wrote {out / 'compare.csv'}")
-    for metric, (label, log, ref) in COMPARE_METRICS.items():
-        if np.isnan(np.asarray(table[metric], float)).all():
-            continue
-        console.print(
-            f"wrote {viz.compare(table, metric, label, log, out / 'figures' / f'{metric}.png', ref)}"
-        )
+    for path in report_compare(table, out, "detectors on identical trials"):
+        console.print(f"wrote {path}")
 
 
 @main.command()

@@ -23,7 +23,7 @@ import numpy as np
 
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
-from swarmraft.estimation.joint import trusted_estimate
+from swarmraft.estimation.joint import anchor_counts, trusted_estimate
 from swarmraft.protocol.records import Report, StepRecord, reports_digest
 from swarmraft.protocol.signing import Keyring
 
@@ -188,7 +188,7 @@ class SwarmDrone:
                 if c.detector != "paper" and again.any():
                     again = present
                 positions[again] = est[again]
-                found = ~present & _anchored(ranges, trusted)
+                found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
                 positions[found] = est[found]
                 if st[0] != "ok" and status == "ok":
                     status = str(st[0])
@@ -202,9 +202,3 @@ class SwarmDrone:
             c.detector,
             reports_digest(list(reports.values())),
         )
-
-
-def _anchored(ranges: np.ndarray, trusted: np.ndarray, need: int = 4) -> np.ndarray:
-    """Drones with ranges from at least ``need`` trusted drones."""
-    measured = ~np.isnan(ranges) & ~np.eye(len(trusted), dtype=bool)
-    return (measured & trusted[:, None]).sum(axis=0) >= need

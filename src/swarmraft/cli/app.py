@@ -94,9 +94,10 @@ def _params(items: tuple[str, ...]) -> dict[str, Any]:
 def progress_bar(
     label: str, unit: str = "trials"
 ) -> tuple[Progress, Callable[[int, int], Callable[[int], None]]]:
-    """A progress bar, and the ``progress(total, cells)`` callback factory sweeps take."""
+    """A progress bar, and the ``progress(total, cells[, name])`` callback factory sweeps
+    take; each call adds a bar, labelled ``name`` if given."""
     prog = Progress(
-        TextColumn(f"[bold]{label}[/]"),
+        TextColumn("[bold]{task.description}[/]"),
         BarColumn(),
         MofNCompleteColumn(),
         TextColumn(unit),
@@ -107,8 +108,8 @@ def progress_bar(
         transient=False,
     )
 
-    def start(total: int, cells: int) -> Callable[[int], None]:
-        task = prog.add_task(label, total=total)
+    def start(total: int, cells: int, name: str | None = None) -> Callable[[int], None]:
+        task = prog.add_task(f"{label} {name}" if name else label, total=total)
         return lambda k: prog.advance(task, k)
 
     return prog, start

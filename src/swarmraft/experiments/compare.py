@@ -48,7 +48,13 @@ def run_compare(
                 update={"detector": det, "attack": config.attack.model_copy(update={"name": attack})}
             )
             cfg = SweepConfig(**cfg.model_dump())  # re-validate
-            res = run_sweep(cfg, out / attack / det, workers=workers, scheduler=scheduler, progress=progress)
+            labelled = None
+            if progress is not None:
+
+                def labelled(total: int, cells: int, name: str = f"{attack}, {det}") -> Callable:
+                    return progress(total, cells, name)
+
+            res = run_sweep(cfg, out / attack / det, workers=workers, scheduler=scheduler, progress=labelled)
             results.append(res)
             rows += [{c: res.cells[c][i] for c in CELL_COLUMNS} for i in range(len(res.cells["n"]))]
     write_rows(out / "compare.csv", CELL_COLUMNS, rows)

@@ -31,7 +31,7 @@ from swarmraft.cli.app import (
     type=PRESET,
     default="reference",
     show_default=True,
-    help="reference: the paper's code; realistic: FACTS.md noise.",
+    help="reference: the paper's code; realistic: GNSS and UWB noise (docs/models.md).",
 )
 @click.option(
     "--config",
@@ -190,7 +190,7 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
 @main.command()
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
 def check(results) -> None:
-    """Compare a reference sweep with the paper's published means (FACTS.md).
+    """Compare a reference sweep with the paper's published means (docs/models.md).
 
     Passes when every recovered mean is within 3 standard errors of the published one and
     every baseline within 0.3 m; exits 1 otherwise.

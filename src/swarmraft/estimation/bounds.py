@@ -1,4 +1,4 @@
-"""Cramér-Rao bounds on position error (FACTS.md, "Limits from theory").
+"""Cramér-Rao bounds on position error (how sweeps and missions report them: docs/files.md).
 
 - `anchor_crb`: one drone located from ranges to K anchors, at known positions or with a
   GNSS covariance S_k each: J = sum_k u_k u_k^T / (sigma_d^2 + u_k^T S_k u_k) (+ P_prior^-1).

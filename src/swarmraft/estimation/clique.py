@@ -13,7 +13,7 @@ consistent with most honest drones), so the cliques are candidates, each checked
 residual tests of a joint estimate that trusts it (`passes_residual_tests`): a spoofed report
 inside a candidate shows up as a large GNSS residual there.
 
-Identifiability (FACTS.md): f colluding attackers moving rigidly about up to 3 honest pivot
+Identifiability (docs/models.md): f colluding attackers moving rigidly about up to 3 honest pivot
 drones form a consistent clique of f + 3 in 3-D, so the honest clique is the unique maximum
 only when n >= 2f + 4. The candidates are the maximal cliques that leave at most ``f_max``
 drones out (the number of attackers the swarm is meant to tolerate; by default an honest

@@ -1,7 +1,7 @@
 """The paper's detector: Algorithm 1 (pairwise consistency vote, then multilateration of the
 flagged drones from the unflagged ones), with every parameter exposed.
 
-The defaults are the ``reference`` settings: the paper's public code as FACTS.md describes it
+The defaults are the ``reference`` settings: the paper's public code as docs/models.md describes it
 (tau 0.01 m, epsilon 3 m, start at the drone's own report, soft_l1 loss with f_scale 5 m,
 up to 3 restarts stopping when a restart moves < 1e-3 m, all other drones as anchors when
 fewer than 3 unflagged remain, a tie counts as honest). Flagged drones are processed in index
@@ -23,7 +23,7 @@ from swarmraft.estimation.trust_region import linear_multilateration, solve_rang
 
 
 class PaperParams(BaseModel):
-    """Parameters of Algorithm 1. Defaults: the reference code (FACTS.md)."""
+    """Parameters of Algorithm 1. Defaults: the reference code (docs/models.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 

@@ -9,7 +9,7 @@ without bounds: the trust region is solved exactly through an SVD of the scaled 
 Moré's root finding for the Levenberg-Marquardt parameter, the same radius update and
 termination tests, and the same robust-loss rescaling. Run on one problem with the same
 settings it follows SciPy's iterates, given an analytic Jacobian; that is what lets the
-``reference`` preset reproduce the paper's code (FACTS.md). Here the problems of a batch are
+``reference`` preset reproduce the paper's code (docs/models.md). Here the problems of a batch are
 solved one after another in a kernel compiled by numba (a leader step at n = 17 has 8 of
 them, a sweep chunk thousands): SciPy's Python-level loop costs about 1 ms per problem, and a
 numpy version vectorised across the batch still paid about 0.4 ms of interpreter overhead per

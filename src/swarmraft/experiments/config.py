@@ -1,4 +1,4 @@
-"""Typed, validated sweep configuration and the two presets of FACTS.md.
+"""Typed, validated sweep configuration and the two presets of docs/models.md.
 
 Bad input is a one-line ``ConfigError`` naming the field (``gnss.sigma_h: ...``).
 """
@@ -45,7 +45,7 @@ class _Strict(BaseModel):
 
 
 class GNSSConfig(_Strict):
-    """Honest GNSS error per axis, m (FACTS.md realistic: 1.5 m horizontal, 3 m vertical)."""
+    """Honest GNSS error per axis, m (docs/models.md realistic: 1.5 m horizontal, 3 m vertical)."""
 
     sigma_h: float = Field(1.5, ge=0)
     sigma_v: float = Field(3.0, ge=0)
@@ -57,7 +57,7 @@ class GNSSConfig(_Strict):
 
 
 class RangingConfig(_Strict):
-    """Ranging: ``exact`` (reference code), ``uwb`` (FACTS.md: 0.10 m) or ``rssi``."""
+    """Ranging: ``exact`` (reference code), ``uwb`` (docs/models.md: 0.10 m) or ``rssi``."""
 
     kind: Literal["exact", "uwb", "rssi"] = "uwb"
     sigma: float = Field(0.10, ge=0, description="UWB sigma, m")
@@ -133,7 +133,7 @@ class SweepConfig(_Strict):
     ranging: RangingConfig = Field(default_factory=lambda: RangingConfig(kind="exact"))
     geometry: Literal["cube", "formation"] = Field("cube", description="uniform cube, or a grid formation")
     area_size: float = Field(100.0, gt=0, description="cube side, m (paper: 100 m)")
-    spacing: float = Field(20.0, gt=0, description="formation spacing, m (FACTS.md: 10-30 m)")
+    spacing: float = Field(20.0, gt=0, description="formation spacing, m (docs/models.md: 10-30 m)")
     jitter: float = Field(2.0, ge=0, description="formation jitter per axis, m")
     calibrate: bool = Field(False, description="set tau/epsilon by calibration (III.E)")
     calibration_trials: int = Field(2000, ge=10)
@@ -183,7 +183,7 @@ def read_toml(path: Path, flag: str) -> dict[str, Any]:
 
 
 def preset_defaults(preset: str) -> dict[str, Any]:
-    """The preset's settings (FACTS.md). ``reference``: the paper's code; ``realistic``: GNSS
+    """The preset's settings (docs/models.md). ``reference``: the paper's code; ``realistic``: GNSS
     1.5/3 m, UWB 0.10 m, jumps 10-100 m, thresholds calibrated from honest runs."""
     if preset == "reference":
         return {

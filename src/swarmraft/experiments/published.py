@@ -1,4 +1,4 @@
-"""The paper's published results (FACTS.md: the authors' saved results for n = 2f+1,
+"""The paper's published results (docs/models.md: the authors' saved results for n = 2f+1,
 10,000 trials each) and a comparison of a sweep against them."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-#: n -> (f, recovered mean m, baseline mean m), FACTS.md "Published recovered means".
+#: n -> (f, recovered mean m, baseline mean m): docs/models.md, "The paper and the numbers ...".
 PUBLISHED: dict[int, tuple[int, float, float]] = {
     3: (1, 19.00, 28.7),
     5: (2, 5.50, 28.9),

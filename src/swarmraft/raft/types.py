@@ -100,7 +100,7 @@ class Status:
 class RaftConfig:
     """A node's settings. Ticks are the host's unit of time: with 10 ms ticks,
     ``election_tick`` 15 and ``heartbeat_tick`` 5 give the Raft paper's 150-300 ms randomised
-    election timeout and a 50 ms heartbeat (FACTS.md)."""
+    election timeout and a 50 ms heartbeat (the Raft paper's setting)."""
 
     id: int
     peers: tuple[int, ...]

@@ -74,7 +74,7 @@ class Cluster:
     """n Raft nodes (ids 1..n) in the simulator.
 
     ``tick_ms`` 10 with ``election_tick`` 15 and ``heartbeat_tick`` 5 gives 150-300 ms
-    election timeouts and 50 ms heartbeats (FACTS.md, the Raft paper); the default network
+    election timeouts and 50 ms heartbeats (the Raft paper; docs/protocol.md); the default network
     has 1-3 ms one-way delay and no loss.
     """
 

@@ -1,7 +1,7 @@
 """A mission scenario: typed, validated configuration (a TOML file maps onto it one to one).
 
 Drone ids are 1..n everywhere in a scenario (as in the simulator). Defaults come from
-FACTS.md: GNSS 1.5/3 m with Gauss-Markov tau 120 s, UWB 0.10 m, drone-grade INS, 10 Hz steps,
+docs/scenarios.md: GNSS 1.5/3 m with Gauss-Markov tau 120 s, UWB 0.10 m, drone-grade INS, 10 Hz steps,
 5-10 m/s formation flight at 10-30 m spacing, 150-300 ms election timeouts with 10 ms ticks.
 """
 
@@ -92,7 +92,7 @@ class Scenario(_Strict):
     seed: int = Field(1, ge=0)
     drones: int = Field(9, ge=4, le=64)
     duration_s: float = Field(60.0, gt=0)
-    dt_s: float = Field(0.1, gt=0, description="step (FACTS.md: 10 Hz)")
+    dt_s: float = Field(0.1, gt=0, description="step, s (10 Hz)")
     motion: MotionConfig = Field(default_factory=MotionConfig)
     gnss: GNSSTimeConfig = Field(default_factory=GNSSTimeConfig)
     ins: INSConfig = Field(default_factory=INSConfig)

@@ -45,7 +45,7 @@ class PositionAttack(Protocol):
 class Jump:
     """Independent position jumps. ``box``: offset uniform in [-half_width, half_width] per
     axis (the paper: 30 m; mean norm about 28.8 m). ``shell``: uniform direction, magnitude
-    uniform in [low, high] (realistic: 10-100 m, FACTS.md)."""
+    uniform in [low, high] (realistic: 10-100 m, docs/models.md)."""
 
     kind: Literal["box", "shell"] = "box"
     half_width: float = 30.0

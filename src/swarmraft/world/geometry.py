@@ -10,7 +10,7 @@ import numpy as np
 
 
 def uniform_cube(rng: np.random.Generator, trials: int, n: int, size: float = 100.0) -> np.ndarray:
-    """n drones uniform in the cube [0, size]^3, as the paper (size 100 m, FACTS.md)."""
+    """n drones uniform in the cube [0, size]^3, as the paper (size 100 m, docs/models.md)."""
     if n < 1 or trials < 1 or not size > 0:
         raise ValueError("uniform_cube: need n >= 1, trials >= 1, size > 0")
     return rng.uniform(0.0, size, size=(trials, n, 3))
@@ -25,7 +25,7 @@ def formation(
     altitude: float = 50.0,
     layers: int = 2,
 ) -> np.ndarray:
-    """A grid formation: n drones on a near-square grid with the given spacing (FACTS.md:
+    """A grid formation: n drones on a near-square grid with the given spacing (docs/models.md:
     10-30 m), in ``layers`` altitude layers one spacing apart (two layers keep the geometry
     three-dimensional), plus uniform jitter of +/- ``jitter`` m per axis, and a random heading.
     """

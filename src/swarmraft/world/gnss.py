@@ -1,7 +1,7 @@
 """GNSS error models: white Gaussian per axis, first-order Gauss-Markov over time, and a
 component common to all drones. Sigmas are per axis: horizontal (E, N) and vertical (U).
 
-Defaults: 1.5 m horizontal, 3 m vertical, Gauss-Markov tau 60-300 s (FACTS.md, realistic).
+Defaults: 1.5 m horizontal, 3 m vertical, Gauss-Markov tau 60-300 s (docs/models.md, realistic).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ grows linearly, so a horizontal acceleration error g * omega * t):
     e(tau) = 0.5 * b_a * tau^2 + (g / 6) * omega_h * tau^3     (tau: time since the last reset)
 
 Grades give per-axis 1-sigma biases. ``drone-grade`` is set so that the RMS error matches
-FACTS.md (0.02 m at 1 s, 1.8 m at 10 s, 68 m at 60 s after alignment); the other grades
+docs/models.md (0.02 m at 1 s, 1.8 m at 10 s, 68 m at 60 s after alignment); the other grades
 are typical datasheet orders of magnitude (consumer MEMS ~10 mg / ~20 deg/h, industrial
 ~0.3 mg / ~0.3 deg/h, tactical ~0.05 mg / ~0.05 deg/h), not calibrated against a source.
 """

@@ -1,4 +1,4 @@
-"""Ground-truth motion over time: a formation following waypoints (FACTS.md: 5-10 m/s,
+"""Ground-truth motion over time: a formation following waypoints (docs/models.md: 5-10 m/s,
 10-30 m spacing, 10 Hz steps), or a static swarm (the paper's cube)."""
 
 from __future__ import annotations

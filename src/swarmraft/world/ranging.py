@@ -31,7 +31,7 @@ def _pair_noise(rng: np.random.Generator, shape: tuple[int, ...], symmetric: boo
 
 @dataclass(frozen=True)
 class ExactRanging:
-    """True distances, symmetric, every pair: the reference code (FACTS.md)."""
+    """True distances, symmetric, every pair: the reference code (docs/models.md)."""
 
     max_range: float | None = None
 
@@ -42,7 +42,7 @@ class ExactRanging:
 
 @dataclass(frozen=True)
 class UWBRanging:
-    """UWB two-way ranging: Gaussian noise sigma (default 0.10 m, FACTS.md; 0.05-0.15 m),
+    """UWB two-way ranging: Gaussian noise sigma (default 0.10 m, docs/models.md; 0.05-0.15 m),
     with probability ``nlos_prob`` a positive NLOS bias uniform in ``nlos_bias`` (default
     +0.3 to +1 m), nothing beyond ``max_range`` (reliable to 50-100 m). ``symmetric``: i and j
     share one measurement; otherwise each direction is measured independently."""
@@ -76,7 +76,7 @@ class UWBRanging:
 @dataclass(frozen=True)
 class RSSIRanging:
     """RSSI ranging under log-normal shadowing: the received power has Gaussian shadowing of
-    ``shadowing_db`` dB (FACTS.md: 4-8 dB) and path-loss exponent ``exponent`` (2-4), so the
+    ``shadowing_db`` dB (docs/models.md: 4-8 dB) and path-loss exponent ``exponent`` (2-4), so the
     inverted distance is d * 10^(X / (10 exponent)), X ~ N(0, shadowing_db^2)."""
 
     shadowing_db: float = 6.0

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
 
 from swarmraft.cli.app import (
     console,
+    err_console,
     main,
     progress_bar,
 )
@@ -25,12 +27,32 @@ def mission_figures(result, out: Path) -> list[Path]:
         len(log.t) // 2,
         len(log.t) - 1,
     ]
+    from swarmraft.experiments.mission import judged
+
+    wrong = judged(log) & (log.faulty != log.spoofed)
     return [
         vm.error_over_time(
-            log.t, errors, log.spoofed, log.outage, log.events, fig_dir / "error_over_time.png", sc.name
+            log.t,
+            errors,
+            log.spoofed,
+            log.outage,
+            log.events,
+            fig_dir / "error_over_time.png",
+            sc.name,
+            alive=log.alive,
+            wrong=wrong,
         ),
         vm.swarm_maps(
-            log.truth, log.reported, log.verified, log.faulty, steps, log.t, fig_dir / "swarm_maps.png"
+            log.truth,
+            log.reported,
+            log.verified,
+            log.faulty,
+            steps,
+            log.t,
+            fig_dir / "swarm_maps.png",
+            spoofed=log.spoofed,
+            outage=log.outage,
+            alive=log.alive,
         ),
         vm.consensus_latency(log.t, log.latency_ms, log.events, fig_dir / "consensus_latency.png"),
         vm.messages_per_step(
@@ -43,11 +65,29 @@ def _m(v: float | None) -> str:
     return "n/a" if v is None else f"{v} m"
 
 
+def _pct(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.1%}"
+
+
+def _s(v: float | None) -> str:
+    return "never" if v is None else f"after {v} s"
+
+
+def _ids(ids: list[int]) -> str:
+    return ", ".join(str(i) for i in ids)
+
+
+#: wrong-partition steps printed one by one; summary.json lists all of them
+LIST_WRONG = 12
+
+
 def print_mission_summary(summary: dict) -> None:
     s = summary
     console.print(
         f"[bold]{s['scenario']}[/]: {s['drones']} drones, {s['steps']} steps, detector {s['detector']}"
     )
+    for w in s["warnings"]:
+        console.print(f"  [red]warning[/]: {w}")
     console.print(
         f"  committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
         f"(longest run {s['longest_skipped_run']}); records identical on all nodes: "
@@ -56,30 +96,69 @@ def print_mission_summary(summary: dict) -> None:
     console.print(
         f"  honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
         f"SwarmRaft {_m(s['honest_error_swarmraft_m'])}, "
-        f"bound {_m(s['honest_bound_m'])}; false positives {s['honest_false_positive_rate']:.2%}"
+        f"snapshot bound {_m(s['honest_snapshot_bound_m'])}; "
+        f"honest drones flagged in {s['honest_false_positive_rate']:.2%} of their steps"
     )
+    wrong = s["wrong_partition_steps"]
+    colour = "red" if wrong else "green"
+    console.print(
+        f"  [{colour}]wrong partition[/] (flags differ from the spoofed set among alive, "
+        f"reporting drones) in {s['wrong_partition_step_count']} committed steps" + (":" if wrong else "")
+    )
+    for w in wrong[:LIST_WRONG]:
+        parts = []
+        if w["honest_flagged"]:
+            parts.append(f"honest {_ids(w['honest_flagged'])} flagged")
+        if w["spoofed_not_flagged"]:
+            parts.append(f"spoofed {_ids(w['spoofed_not_flagged'])} not flagged")
+        console.print(f"    t = {w['t']:.1f} s: {'; '.join(parts)} (status {w['status']})")
+    if len(wrong) > LIST_WRONG:
+        ranges = ", ".join(
+            f"{a:.1f}" if a == b else f"{a:.1f}-{b:.1f}" for a, b in s["wrong_partition_time_ranges_s"]
+        )
+        console.print(
+            f"    ... {len(wrong) - LIST_WRONG} more (summary.json lists every one); all, s: {ranges}"
+        )
     for d in s["detections"]:
-        if d["detected"]:
+        head = f"  {d['kind']} on drone {d['drone']} from {d['start_s']:g} s:"
+        if not d["flagged_at_least_once"]:
             console.print(
-                f"  {d['kind']} on drone {d['drone']}: detected after {d['time_to_detect_s']} s "
-                f"(its GNSS then {d['reported_error_at_detection_m']} m off); afterwards error "
-                f"{_m(d['mean_error_after_m'])}, bound {_m(d['mean_bound_after_m'])}"
+                f"{head} [red]never flagged[/] in {d['judged_steps']} steps; error mean "
+                f"{_m(d['mean_error_m'])}, worst {_m(d['worst_error_m'])}"
             )
-        else:
-            console.print(f"  {d['kind']} on drone {d['drone']}: [red]not detected[/]")
+            continue
+        console.print(
+            f"{head} flagged in {_pct(d['flagged_fraction'])} of {d['judged_steps']} steps, first "
+            f"{_s(d['time_to_first_detection_s'])} (its GNSS then "
+            f"{d['reported_error_at_first_detection_m']} m off), sustained "
+            f"{_s(d['time_to_sustained_detection_s'])}; error mean {_m(d['mean_error_m'])}, "
+            f"worst {_m(d['worst_error_m'])}, snapshot bound {_m(d['mean_snapshot_bound_m'])}"
+        )
+    for a in s["after_faults"]:
+        console.print(
+            f"  after {a['event']} ({a['from_s']:.1f}-{a['to_s']:.1f} s): honest drones SwarmRaft "
+            f"{_m(a['honest_error_swarmraft_m'])} against raw GNSS {_m(a['honest_error_gnss_m'])}; "
+            f"{a['skipped_steps']} skipped, {a['wrong_partition_steps']} wrong-partition steps"
+        )
+    for o in s["outages"]:
+        console.print(
+            f"  GNSS outage of drone {o['drone']} ({o['from_s']:g}-{o['to_s']} s): SwarmRaft "
+            f"{_m(o['mean_error_swarmraft_m'])}; INS aligned to the truth at the outage's start "
+            f"{_m(o['mean_error_ins_aligned_m'])}; INS never reset {_m(o['mean_error_ins_alone_m'])} "
+            f"({_m(o['ins_alone_error_at_start_m'])} off at the start); snapshot bound "
+            f"{_m(o['mean_snapshot_bound_m'])}"
+        )
     console.print(f"  consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms")
     console.print(
         f"  Raft messages per committed step {s['raft_messages_per_committed_step']} "
         f"(minimum 2(n-1) = {s['raft_minimum_per_step']}), reports per step {s['reports_per_step']}"
     )
-    for o in s["outages"]:
-        console.print(
-            f"  GNSS outage of drone {o['drone']} ({o['from_s']}-{o['to_s']} s): SwarmRaft "
-            f"{_m(o['mean_error_swarmraft_m'])}, INS alone {_m(o['mean_error_ins_alone_m'])}, "
-            f"bound {_m(o['mean_bound_m'])}"
-        )
     for e in s["events"]:
         console.print(f"  event: {e}")
+    console.print(
+        f"  (sustained: flagged in every step of the {s['sustained_detection_s']:g} s that start "
+        f"there, within the spoof; {s['bound_note']})"
+    )
 
 
 @main.command()
@@ -95,11 +174,26 @@ def print_mission_summary(summary: dict) -> None:
 )
 @click.option("--seed", type=int, help="override the scenario's seed")
 @click.option("--detector", help="override the scenario's detector")
-def mission(scenario_file, out, seed, detector) -> None:
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="print the summary as JSON on stdout (the lines saying what was written go to stderr)",
+)
+def mission(scenario_file, out, seed, detector, as_json) -> None:
     """Run a mission in the simulator: drones fly, sense, report to the Raft leader, and
     apply the verified positions committed through the Raft log, with the scenario's attacks
     and faults. Writes steps.csv (one row per step and drone), summary.json, scenario.json and
-    figures (error over time, swarm maps, consensus latency, messages per step)."""
+    figures (error over time, swarm maps, consensus latency, messages per step).
+
+    The summary reports, per spoofed drone, the share of its steps (committed, drone alive
+    and heard) in which it was flagged, the time to its first and to its sustained detection
+    (flagged in every step of the 3 s that start there, within the spoof), and its mean and worst
+    error; the steps with a wrong partition (flags differ from the spoofed set); the honest
+    drones' error against raw GNSS after each fault; per GNSS outage, INS aligned to the truth
+    at the outage's start beside INS never reset. The "snapshot bound" is the Cramér-Rao bound
+    of one step's measurements alone; SwarmRaft, which carries the previous record as a
+    prior, can be below it."""
     from swarmraft.experiments.mission import load_scenario, run_and_write
 
     sc = load_scenario(scenario_file, seed=seed)
@@ -109,12 +203,14 @@ def mission(scenario_file, out, seed, detector) -> None:
 
         get_detector(detector)
     out = out or Path("results") / sc.name
-    console.print(
-        f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}"
-    )
+    say = err_console if as_json else console
+    say.print(f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}")
     prog, start = progress_bar("mission", "steps")
     with prog:
         result = run_and_write(sc, out, start(sc.steps + 1, 0))
-    print_mission_summary(result.summary)
+    if as_json:
+        click.echo(json.dumps(result.summary, indent=2))
+    else:
+        print_mission_summary(result.summary)
     for p in [out / "steps.csv", out / "summary.json", out / "scenario.json", *mission_figures(result, out)]:
-        console.print(f"wrote {p}")
+        say.print(f"wrote {p}")

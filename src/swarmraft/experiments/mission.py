@@ -29,6 +29,7 @@ STEP_COLUMNS = (
     "missing",
     "faulty",
     "committed",
+    "wrong_partition",
     "truth_x",
     "truth_y",
     "truth_z",
@@ -40,8 +41,9 @@ STEP_COLUMNS = (
     "verified_z",
     "error_gnss",
     "error_ins_alone",
+    "error_ins_aligned",
     "error_swarmraft",
-    "bound",
+    "snapshot_bound",
     "leader",
     "term",
     "latency_ms",
@@ -65,14 +67,28 @@ def load_scenario(path: str | Path, **overrides: Any) -> Scenario:
 @dataclass(frozen=True)
 class MissionResult:
     log: MissionLog
-    errors: dict[str, np.ndarray]  # (S, n) each: gnss, ins_alone, swarmraft, bound
+    errors: dict[str, np.ndarray]  # (S, n) each: see error_series
     summary: dict[str, Any]
 
 
+#: A spoofed drone's detection is *sustained* from the first step at which it is flagged in
+#: every judged step (committed, the drone alive and heard) of the SUSTAIN_S seconds that
+#: start there, all within its spoof (so a spoof shorter than that has none).
+SUSTAIN_S = 3.0
+
+BOUND_NOTE = (
+    "snapshot bound: the Cramér-Rao bound of one step's measurements alone (honest GNSS and "
+    "every range, the faulty set known); SwarmRaft also carries the previous record as a "
+    "prior, so it can be below this bound"
+)
+
+
 def error_series(log: MissionLog) -> dict[str, np.ndarray]:
-    """Per step and drone: error of the raw GNSS output, of INS alone, of SwarmRaft's
-    committed position, and the swarm Cramér-Rao bound (sqrt of the trace) with the spoofed,
-    jammed and silent drones' GNSS excluded."""
+    """Per step and drone: error of the raw GNSS output, of INS alone (never reset), of INS
+    aligned to the truth at the start of the drone's GNSS outage (nan outside outages), of
+    SwarmRaft's committed position, and the snapshot bound (sqrt of the trace of the swarm
+    Cramér-Rao bound of that step's measurements alone, with the spoofed, jammed and silent
+    drones' GNSS excluded)."""
     sc = log.scenario
 
     def err(x: np.ndarray) -> np.ndarray:
@@ -89,9 +105,23 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
     return {
         "gnss": err(log.gnss),
         "ins_alone": err(log.ins_alone),
+        "ins_aligned": err(log.ins_aligned),
         "swarmraft": err(log.verified),
-        "bound": bound,
+        "snapshot_bound": bound,
     }
+
+
+def judged(log: MissionLog) -> np.ndarray:
+    """(S, n) bool: the drone's flag in the step's record can be judged: the step has a
+    record, the drone is alive and its report reached the leader (a silent drone is placed
+    from ranges and neither flagged nor cleared)."""
+    return log.committed[:, None] & log.alive & ~log.missing
+
+
+def wrong_partition(log: MissionLog) -> np.ndarray:
+    """(S,) bool: committed steps whose flags differ from the spoofed set among the judged
+    drones (an honest drone flagged, or a spoofed one not flagged)."""
+    return (judged(log) & (log.faulty != log.spoofed)).any(axis=1)
 
 
 def _mean(values: np.ndarray) -> float | None:
@@ -102,6 +132,12 @@ def _mean(values: np.ndarray) -> float | None:
     return round(float(v.mean()), 3) if v.size else None
 
 
+def _max(values: np.ndarray) -> float | None:
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return round(float(v.max()), 3) if v.size else None
+
+
 def _runs(mask: np.ndarray) -> int:
     """Longest run of True."""
     best = cur = 0
@@ -109,6 +145,115 @@ def _runs(mask: np.ndarray) -> int:
         cur = cur + 1 if v else 0
         best = max(best, cur)
     return best
+
+
+def time_ranges(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    """The runs of True in ``mask`` as (first, last) times, s."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    return [
+        (round(float(t[a]), 3), round(float(t[b - 1]), 3))
+        for a, b in zip(edges[::2], edges[1::2], strict=True)
+    ]
+
+
+def _step_of(sc: Scenario, t_s: float, S: int) -> int:
+    return min(int(np.ceil(t_s / sc.dt_s - 1e-9)), S)
+
+
+def _spoof_detection(log: MissionLog, errors: dict[str, np.ndarray], k_sp: int, drone: int) -> dict[str, Any]:
+    """How one spoofed drone was flagged over its spoof: the share of judged steps flagged,
+    the first and the sustained detection (SUSTAIN_S), and its error from the spoof's start."""
+    sc = log.scenario
+    sp = sc.spoof[k_sp]
+    S, i = len(log.t), drone - 1
+    k0 = _step_of(sc, sp.start_s, S)
+    k1 = S if sp.end_s is None else _step_of(sc, sp.end_s, S)
+    steps = np.arange(k0, k1)
+    seen = judged(log)[steps, i]
+    flagged = log.faulty[steps, i] & seen
+    hold = max(1, int(round(SUSTAIN_S / sc.dt_s)))
+    first = sustained = None
+    if flagged.any():
+        first = int(steps[np.flatnonzero(flagged)[0]])
+        for j in np.flatnonzero(flagged):
+            window = slice(j, j + hold)
+            if j + hold <= len(steps) and (flagged[window] | ~seen[window]).all():
+                sustained = int(steps[j])
+                break
+    err, bound = errors["swarmraft"][steps, i], errors["snapshot_bound"][steps, i]
+    ok = np.isfinite(err) & np.isfinite(bound) & (bound > 0)
+    ratio = err[ok] / bound[ok]
+
+    def after(k: int | None) -> float | None:
+        return None if k is None else round(float(log.t[k] - sp.start_s), 3)
+
+    return {
+        "spoof": k_sp,
+        "kind": sp.kind,
+        "drone": drone,
+        "start_s": sp.start_s,
+        "judged_steps": int(seen.sum()),
+        "flagged_steps": int(flagged.sum()),
+        "flagged_fraction": round(float(flagged.sum() / seen.sum()), 4) if seen.any() else None,
+        "flagged_at_least_once": first is not None,
+        "time_to_first_detection_s": after(first),
+        "time_to_sustained_detection_s": after(sustained),
+        "reported_error_at_first_detection_m": None
+        if first is None
+        else round(float(errors["gnss"][first, i]), 3),
+        "worst_error_m": _max(errors["swarmraft"][steps, i]),
+        "mean_error_m": _mean(errors["swarmraft"][steps, i]),
+        "mean_snapshot_bound_m": _mean(errors["snapshot_bound"][steps, i]),
+        "p95_error_to_snapshot_bound": round(float(np.percentile(ratio, 95)), 3) if ratio.size else None,
+    }
+
+
+def _majority_warnings(log: MissionLog) -> list[str]:
+    """A warning when, at some step, more of the alive drones are spoofed than (a-1)//2."""
+    sc = log.scenario
+    n = sc.drones
+    out = []
+    if log.spoofed.sum(axis=1).max(initial=0) > (n - 1) // 2:
+        out.append(
+            f"up to {int(log.spoofed.sum(axis=1).max())} of {n} drones spoofed at once, more "
+            f"than (n-1)//2 = {(n - 1) // 2}: the honest drones are no majority and no detector "
+            "can be expected to tell them apart"
+        )
+    alive = log.alive.sum(axis=1)
+    over = (log.spoofed & log.alive).sum(axis=1) > (alive - 1) // 2
+    over &= alive > 0
+    if over.any() and not out:
+        k = int(np.flatnonzero(over)[0])
+        out.append(
+            f"from t = {log.t[k]:.1f} s, {int((log.spoofed[k] & log.alive[k]).sum())} of the "
+            f"{int(alive[k])} drones alive are spoofed, more than (a-1)//2 = {(int(alive[k]) - 1) // 2}"
+        )
+    return out
+
+
+def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndarray) -> list[dict[str, Any]]:
+    """Per fault event, from it to the next one (or the mission's end): the honest drones'
+    SwarmRaft error against their raw GNSS, skipped and wrong-partition steps."""
+    honest = ~log.spoofed.any(axis=0)
+    S = len(log.t)
+    times = [t for t, _ in log.events] + [float(log.t[-1]) + log.scenario.dt_s]
+    out = []
+    for (t0, what), t1 in zip(log.events, times[1:], strict=True):
+        k0, k1 = _step_of(log.scenario, t0, S), _step_of(log.scenario, t1, S)
+        rows = slice(k0, k1)
+        alive = log.alive[rows][:, honest]
+        out.append(
+            {
+                "event": what,
+                "from_s": round(t0, 3),
+                "to_s": round(min(t1, float(log.t[-1])), 3),
+                "honest_error_swarmraft_m": _mean(errors["swarmraft"][rows][:, honest][alive]),
+                "honest_error_gnss_m": _mean(errors["gnss"][rows][:, honest][alive]),
+                "skipped_steps": int((~log.committed[rows]).sum()),
+                "wrong_partition_steps": int(wrong[rows].sum()),
+            }
+        )
+    return out
 
 
 def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -124,40 +269,25 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
             agree &= digests.setdefault(step, d) == d
     committed = int(log.committed.sum())
     per_step_min = 2 * (n - 1)
-    detections = []
-    for k_sp, sp in enumerate(sc.spoof):
-        k0 = int(np.ceil(sp.start_s / sc.dt_s - 1e-9))
-        for d in sp.drones:
-            i = d - 1
-            hit = np.flatnonzero(log.faulty[k0:, i] & log.committed[k0:])
-            if hit.size:
-                k = k0 + int(hit[0])
-                after = np.arange(k, S)
-                after = after[log.committed[after] & log.spoofed[after, i]]
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    ratio = errors["swarmraft"][after, i] / errors["bound"][after, i]
-                ratio = ratio[np.isfinite(ratio)]
-                detections.append(
-                    {
-                        "spoof": k_sp,
-                        "kind": sp.kind,
-                        "drone": d,
-                        "detected": True,
-                        "time_to_detect_s": round(float(log.t[k] - sp.start_s), 3),
-                        "reported_error_at_detection_m": round(float(errors["gnss"][k, i]), 3),
-                        "mean_error_after_m": _mean(errors["swarmraft"][after, i]),
-                        "mean_bound_after_m": _mean(errors["bound"][after, i]),
-                        "p95_error_to_bound_after": round(float(np.percentile(ratio, 95)), 3)
-                        if ratio.size
-                        else None,
-                    }
-                )
-            else:
-                detections.append({"spoof": k_sp, "kind": sp.kind, "drone": d, "detected": False})
+    detections = [_spoof_detection(log, errors, k, d) for k, sp in enumerate(sc.spoof) for d in sp.drones]
+    wrong = wrong_partition(log)
+    seen = judged(log)
+    wrong_steps = [
+        {
+            "step": int(k),
+            "t": round(float(log.t[k]), 3),
+            "status": str(log.status[k]),
+            "honest_flagged": [int(i) + 1 for i in np.flatnonzero(seen[k] & log.faulty[k] & ~log.spoofed[k])],
+            "spoofed_not_flagged": [
+                int(i) + 1 for i in np.flatnonzero(seen[k] & ~log.faulty[k] & log.spoofed[k])
+            ],
+        }
+        for k in np.flatnonzero(wrong)
+    ]
     outages = []
     for o in sc.outage:
-        k0 = int(np.ceil(o.start_s / sc.dt_s - 1e-9))
-        k1 = len(log.t) if o.end_s is None else min(int(np.ceil(o.end_s / sc.dt_s - 1e-9)), len(log.t))
+        k0 = _step_of(sc, o.start_s, S)
+        k1 = S if o.end_s is None else _step_of(sc, o.end_s, S)
         for d in o.drones:
             i = d - 1
             outages.append(
@@ -166,11 +296,13 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                     "from_s": o.start_s,
                     "to_s": o.end_s,
                     "mean_error_swarmraft_m": _mean(errors["swarmraft"][k0:k1, i]),
+                    "mean_error_ins_aligned_m": _mean(errors["ins_aligned"][k0:k1, i]),
                     "mean_error_ins_alone_m": _mean(errors["ins_alone"][k0:k1, i]),
-                    "mean_bound_m": _mean(errors["bound"][k0:k1, i]),
+                    "ins_alone_error_at_start_m": _mean(errors["ins_alone"][k0 : k0 + 1, i]),
+                    "mean_snapshot_bound_m": _mean(errors["snapshot_bound"][k0:k1, i]),
                 }
             )
-    hon_mask = honest[None, :] & log.committed[:, None] & log.alive
+    hon_mask = honest[None, :] & seen
     fp = float(log.faulty[hon_mask].mean()) if hon_mask.any() else 0.0
     raft_per = float(log.raft_messages[log.committed].mean()) if committed else float("nan")
     return {
@@ -183,15 +315,22 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "detector_params": {
             k: (round(v, 4) if isinstance(v, float) else v) for k, v in log.detector_params.items()
         },
+        "warnings": _majority_warnings(log),
         "committed_steps": committed,
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),
         "records_identical_on_all_nodes": bool(agree),
+        "bound_note": BOUND_NOTE,
+        "sustained_detection_s": SUSTAIN_S,
         "honest_error_gnss_m": _mean(errors["gnss"][:, honest]),
         "honest_error_swarmraft_m": _mean(errors["swarmraft"][:, honest]),
-        "honest_bound_m": _mean(errors["bound"][:, honest]),
+        "honest_snapshot_bound_m": _mean(errors["snapshot_bound"][:, honest]),
         "honest_false_positive_rate": round(fp, 5),
+        "wrong_partition_step_count": len(wrong_steps),
+        "wrong_partition_time_ranges_s": time_ranges(log.t, wrong),
+        "wrong_partition_steps": wrong_steps,
         "detections": detections,
+        "after_faults": _after_faults(log, errors, wrong),
         "outages": outages,
         "latency_ms_median": round(float(np.nanmedian(log.latency_ms)), 2),
         "latency_ms_p99": round(float(np.nanpercentile(log.latency_ms, 99)), 2),
@@ -203,6 +342,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
 
 
 def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    wrong = wrong_partition(log)
     rows = []
     for k in range(len(log.t)):
         for i in range(log.scenario.drones):
@@ -218,6 +358,7 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
                     "missing": log.missing[k, i],
                     "faulty": log.faulty[k, i],
                     "committed": log.committed[k],
+                    "wrong_partition": wrong[k],
                     "truth_x": tr[0],
                     "truth_y": tr[1],
                     "truth_z": tr[2],
@@ -229,8 +370,9 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
                     "verified_z": vf[2],
                     "error_gnss": errors["gnss"][k, i],
                     "error_ins_alone": errors["ins_alone"][k, i],
+                    "error_ins_aligned": errors["ins_aligned"][k, i],
                     "error_swarmraft": errors["swarmraft"][k, i],
-                    "bound": errors["bound"][k, i],
+                    "snapshot_bound": errors["snapshot_bound"][k, i],
                     "leader": log.leader[k],
                     "term": log.term[k],
                     "latency_ms": log.latency_ms[k],

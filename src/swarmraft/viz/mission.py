@@ -19,6 +19,27 @@ def _shade(ax: plt.Axes, t: np.ndarray, mask: np.ndarray, color: str, label: str
         label = None
 
 
+#: below this the error axes are linear, so an exact zero is drawn at zero (symlog)
+LINEAR_BELOW_M = 1e-2
+
+
+def _fault_lines(ax: plt.Axes, events: Sequence[tuple[float, str]], label_it: bool) -> None:
+    for te, what in events:
+        ax.axvline(te, color="k", lw=0.8, alpha=0.7, label="fault")
+        if label_it:
+            ax.annotate(
+                what,
+                (te, 1.0),
+                xycoords=("data", "axes fraction"),
+                xytext=(-2, -3),
+                textcoords="offset points",
+                rotation=90,
+                va="top",
+                ha="right",
+                fontsize=6.5,
+            )
+
+
 def error_over_time(
     t: np.ndarray,
     errors: dict[str, np.ndarray],
@@ -27,38 +48,73 @@ def error_over_time(
     events: Sequence[tuple[float, str]],
     path: Path,
     title: str = "",
+    alive: np.ndarray | None = None,
+    wrong: np.ndarray | None = None,
 ) -> Path:
-    """One panel per drone: error of raw GNSS, INS alone and SwarmRaft over time (log axis),
-    with the Cramér-Rao bound; spoofing and GNSS outages shaded, faults marked."""
+    """One panel per drone: error of raw GNSS, of INS never reset, of INS aligned at the
+    start of a GNSS outage, and of SwarmRaft over time, with the snapshot bound; spoofing,
+    GNSS outages and time without the drone (crashed) shaded; faults drawn and labelled
+    where there are any. ``wrong`` (steps x drones) marks the steps whose record put the drone
+    on the wrong side of the partition (an honest drone flagged, a spoofed one not flagged):
+    a marker on that drone's SwarmRaft error, and a tick at the top of every panel. The
+    axis is logarithmic above LINEAR_BELOW_M and linear below it, so zero is drawn at zero."""
     n = spoofed.shape[1]
+    alive = np.ones_like(spoofed) if alive is None else alive
+    wrong = np.zeros_like(spoofed) if wrong is None else wrong
+    wrong_step = wrong.any(axis=1)
     cols = int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(
-        rows, cols, figsize=(3.6 * cols, 2.6 * rows), sharex=True, sharey=True, squeeze=False
+        rows, cols, figsize=(3.8 * cols, 2.8 * rows), sharex=True, sharey=True, squeeze=False
     )
-    floor = 1e-2
     for i in range(rows * cols):
         ax = axes.flat[i]
         if i >= n:
             ax.axis("off")
             continue
-        ax.plot(t, np.maximum(errors["gnss"][:, i], floor), color="tab:red", lw=0.8, label="raw GNSS")
-        ax.plot(
-            t,
-            np.maximum(errors["ins_alone"][:, i], floor),
-            color="tab:gray",
-            lw=0.8,
-            ls=":",
-            label="INS alone",
-        )
-        ax.plot(t, np.maximum(errors["swarmraft"][:, i], floor), color="tab:blue", lw=0.9, label="SwarmRaft")
-        if np.isfinite(errors["bound"][:, i]).any():
-            ax.plot(t, errors["bound"][:, i], color="black", lw=0.8, ls="--", label="Cramér-Rao bound")
+        ax.plot(t, errors["gnss"][:, i], color="tab:red", lw=0.8, label="raw GNSS")
+        ax.plot(t, errors["ins_alone"][:, i], color="tab:gray", lw=0.8, ls=":", label="INS never reset")
+        if np.isfinite(errors["ins_aligned"][:, i]).any():
+            ax.plot(
+                t,
+                errors["ins_aligned"][:, i],
+                color="purple",
+                lw=1.0,
+                ls="-.",
+                label="INS aligned at the outage's start",
+            )
+        ax.plot(t, errors["swarmraft"][:, i], color="tab:blue", lw=0.9, label="SwarmRaft")
+        if np.isfinite(errors["snapshot_bound"][:, i]).any():
+            ax.plot(t, errors["snapshot_bound"][:, i], color="black", lw=0.8, ls="--", label="snapshot bound")
         _shade(ax, t, spoofed[:, i], "red", "spoofed")
         _shade(ax, t, outage[:, i], "purple", "GNSS outage")
-        for te, _ in events:
-            ax.axvline(te, color="k", lw=0.6, alpha=0.5)
-        ax.set_yscale("log")
+        _shade(ax, t, ~alive[:, i], "black", "crashed (not reporting)")
+        _fault_lines(ax, events, label_it=i < cols)
+        ax.set_yscale("symlog", linthresh=LINEAR_BELOW_M, linscale=0.4)
+        ax.set_ylim(bottom=0)
+        mine = wrong[:, i]
+        if mine.any():
+            y = np.nan_to_num(errors["swarmraft"][mine, i], nan=0.0)
+            ax.plot(
+                t[mine],
+                y,
+                "o",
+                ms=4,
+                mfc="none",
+                mec="darkorange",
+                mew=1.2,
+                label="this drone on the wrong side",
+            )
+        if wrong_step.any():
+            ax.plot(
+                t[wrong_step],
+                np.full(wrong_step.sum(), 0.97),
+                "v",
+                ms=4,
+                color="darkorange",
+                transform=ax.get_xaxis_transform(),
+                label="wrong-partition step",
+            )
         ax.set_title(f"drone {i + 1}", fontsize=9)
         ax.grid(True, which="major", ls=":", alpha=0.5)
     for ax in axes[-1]:
@@ -71,12 +127,63 @@ def error_over_time(
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
-    fig.suptitle(
-        f"Position error per drone{': ' + title if title else ''} (vertical lines: faults)", fontsize=11
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), frameon=False, fontsize=8)
+    notes = [f"axes log above {LINEAR_BELOW_M:g} m, linear below (0 drawn at 0)"]
+    notes.append(
+        f"wrong partition in {int(wrong_step.sum())} steps" if wrong_step.any() else "no wrong-partition step"
     )
-    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    fig.suptitle(
+        f"Position error per drone{': ' + title if title else ''}\n{'; '.join(notes)}",
+        fontsize=10,
+    )
+    legend_rows = int(np.ceil(len(labels) / 5))
+    fig.tight_layout(rect=(0, 0.025 + 0.025 * legend_rows, 1, 0.97))
     return _save(fig, path)
+
+
+def _place_labels(
+    ax: plt.Axes, anchors: np.ndarray, texts: Sequence[str], obstacles: np.ndarray, fontsize: float = 7
+) -> None:
+    """Label each anchor (data coordinates) at the first of 8 offsets around it whose box
+    overlaps neither an earlier label nor a marker (``obstacles``, data coordinates); the
+    least crowded offset when all overlap. The axes' limits and aspect must be final."""
+    ax.apply_aspect()
+    to_px = ax.transData.transform
+    marks = to_px(obstacles) if len(obstacles) else np.zeros((0, 2))
+    dpi_scale = ax.figure.dpi / 72.0
+    h = fontsize * 1.2 * dpi_scale
+    gap = 5 * dpi_scale
+    placed: list[tuple[float, float, float, float]] = []
+    for (x, y), text in zip(to_px(anchors), texts, strict=True):
+        w = 0.62 * fontsize * len(text) * dpi_scale
+        best, best_cost = None, None
+        for dx, dy in ((1, 1), (1, -1), (-1, 1), (-1, -1), (1, 0), (-1, 0), (0, 1), (0, -1)):
+            x0 = x + dx * gap + (0 if dx > 0 else -w if dx < 0 else -w / 2)
+            y0 = y + dy * gap + (0 if dy > 0 else -h if dy < 0 else -h / 2)
+            box = (x0, y0, x0 + w, y0 + h)
+            cost = sum(
+                1 for b in placed if not (box[2] < b[0] or b[2] < box[0] or box[3] < b[1] or b[3] < box[1])
+            )
+            cost += int(
+                (
+                    (marks[:, 0] > box[0] - 3)
+                    & (marks[:, 0] < box[2] + 3)
+                    & (marks[:, 1] > box[1] - 3)
+                    & (marks[:, 1] < box[3] + 3)
+                ).sum()
+            )
+            if best_cost is None or cost < best_cost:
+                best, best_cost = box, cost
+            if cost == 0:
+                break
+        placed.append(best)
+        ax.annotate(
+            text,
+            ax.transData.inverted().transform((best[0], best[1])),
+            fontsize=fontsize,
+            ha="left",
+            va="bottom",
+        )
 
 
 def swarm_maps(
@@ -87,39 +194,87 @@ def swarm_maps(
     steps: Sequence[int],
     t: np.ndarray,
     path: Path,
+    spoofed: np.ndarray | None = None,
+    outage: np.ndarray | None = None,
+    alive: np.ndarray | None = None,
 ) -> Path:
-    """XY maps at chosen steps: truth, reports, committed positions; flagged drones ringed."""
+    """XY maps at chosen steps: truth, reports, committed positions; each report tied to its
+    drone's true position by a line (red for a spoofed drone), flagged drones ringed, crashed
+    drones (no report) and jammed drones (reporting their INS) marked; drone numbers placed so
+    that they do not overlap."""
+    spoofed = np.zeros_like(faulty) if spoofed is None else spoofed
+    outage = np.zeros_like(faulty) if outage is None else outage
+    alive = np.ones_like(faulty) if alive is None else alive
     k = len(steps)
-    fig, axes = plt.subplots(1, k, figsize=(5.0 * k, 4.8), squeeze=False)
+    fig, axes = plt.subplots(1, k, figsize=(5.4 * k, 5.4), squeeze=False)
     for ax, s in zip(axes[0], steps, strict=True):
-        ax.scatter(truth[s, :, 0], truth[s, :, 1], **TRUE_STYLE)
-        ax.scatter(reported[s, :, 0], reported[s, :, 1], **{**REPORT_STYLE, "s": 35})
-        ax.scatter(verified[s, :, 0], verified[s, :, 1], **{**RECOVERED_STYLE, "s": 70})
-        f = faulty[s]
+        tr, rp, vf = truth[s, :, :2], reported[s, :, :2], verified[s, :, :2]
+        for i in range(truth.shape[1]):
+            if np.isfinite(rp[i]).all():
+                sp = bool(spoofed[s, i])
+                ax.plot(
+                    [tr[i, 0], rp[i, 0]],
+                    [tr[i, 1], rp[i, 1]],
+                    color="red" if sp else "0.6",
+                    ls="--" if sp else "-",
+                    lw=1.0 if sp else 0.6,
+                    label="spoofed report - its drone" if sp else "report - its drone",
+                    zorder=1,
+                )
+        ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
+        ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
+        ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
+        f = faulty[s] & np.isfinite(vf).all(axis=1)
         if f.any():
             ax.scatter(
-                verified[s, f, 0],
-                verified[s, f, 1],
-                s=260,
-                facecolors="none",
-                edgecolors="tab:blue",
-                label="flagged",
+                vf[f, 0], vf[f, 1], s=260, facecolors="none", edgecolors="tab:blue", label="flagged", zorder=4
             )
-        for i in range(truth.shape[1]):
-            ax.annotate(str(i + 1), truth[s, i, :2], textcoords="offset points", xytext=(4, 4), fontsize=7)
+        dead = ~alive[s]
+        if dead.any():
+            ax.scatter(
+                tr[dead, 0], tr[dead, 1], s=150, marker="X", c="black", label="crashed (no report)", zorder=5
+            )
+        jam = outage[s] & alive[s]
+        if jam.any():
+            ax.scatter(
+                tr[jam, 0],
+                tr[jam, 1],
+                s=200,
+                marker="s",
+                facecolors="none",
+                edgecolors="purple",
+                lw=1.4,
+                label="jammed (reports its INS)",
+                zorder=5,
+            )
+        pts = np.concatenate([tr, rp, vf])
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        pad = 0.12 * max(hi - lo) + 2.0
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect("equal", adjustable="box")
         ax.set_title(f"t = {t[s]:.1f} s", fontsize=10)
         ax.set_xlabel("east, m")
-        ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, ls=":", alpha=0.5)
+        labels, anchors = [], []
+        for i in range(truth.shape[1]):
+            labels.append(str(i + 1))
+            anchors.append(tr[i])
+            if spoofed[s, i] and np.isfinite(rp[i]).all():
+                labels.append(f"{i + 1}'")
+                anchors.append(rp[i])
+        _place_labels(ax, np.array(anchors), labels, pts)
     axes[0][0].set_ylabel("north, m")
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    for ax in axes[0][1:]:
+    handles, labels = [], []
+    for ax in axes[0]:
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), frameon=False, fontsize=8)
+    fig.suptitle("Swarm seen from above (n' labels the spoofed report of drone n)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.1, 1, 0.97))
     return _save(fig, path)
 
 

@@ -1,0 +1,173 @@
+"""What a mission's summary tells a user: wrong partitions, detection over time, honest
+baselines, warnings, and the --json output for scripts."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+from swarmraft.experiments.mission import SUSTAIN_S, error_series, load_scenario, summarize
+from swarmraft.sim.mission import run_mission
+from swarmraft.sim.scenario import Scenario
+
+ROOT = Path(__file__).parent.parent
+
+
+def _demo_file() -> Path:
+    """The demo scenario, wherever the tree keeps it (repo folder or package data)."""
+    for p in [ROOT / "scenarios" / "demo.toml", *sorted((ROOT / "src").rglob("scenarios/demo.toml"))]:
+        if p.exists():
+            return p
+    raise FileNotFoundError("demo.toml")
+
+
+def _wrong_steps_by_hand(log) -> list[int]:
+    """Committed steps where some alive drone that reported is flagged while honest, or
+    spoofed while not flagged: counted drone by drone, independently of the summary."""
+    out = []
+    for k in range(len(log.t)):
+        if not log.committed[k]:
+            continue
+        for i in range(log.scenario.drones):
+            if log.alive[k, i] and not log.missing[k, i] and log.faulty[k, i] != log.spoofed[k, i]:
+                out.append(k)
+                break
+    return out
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    res = CliRunner().invoke(main, ["mission", "--scenario", str(_demo_file()), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    log = run_mission(load_scenario(_demo_file()))
+    return res.output, json.loads((out / "summary.json").read_text()), log, out
+
+
+def test_demo_summary_reports_every_wrong_partition_step_it_contains(demo):
+    output, summary, log, _ = demo
+    by_hand = _wrong_steps_by_hand(log)
+    assert summary["wrong_partition_step_count"] == len(by_hand)
+    assert [w["step"] for w in summary["wrong_partition_steps"]] == by_hand
+    assert f"in {len(by_hand)} committed steps" in output
+    for w in summary["wrong_partition_steps"][:12]:  # the printed list; the rest are in the JSON
+        assert f"t = {w['t']:.1f} s:" in output
+        for d in w["honest_flagged"]:
+            assert not log.spoofed[w["step"], d - 1] and log.faulty[w["step"], d - 1]
+
+
+def test_demo_steps_csv_marks_the_same_wrong_partition_steps(demo):
+    _, summary, _, out = demo
+    lines = (out / "steps.csv").read_text().splitlines()
+    cols = lines[0].split(",")
+    step, wrong = cols.index("step"), cols.index("wrong_partition")
+    marked = sorted({int(r.split(",")[step]) for r in lines[1:] if r.split(",")[wrong] == "1"})
+    assert marked == [w["step"] for w in summary["wrong_partition_steps"]]
+
+
+def test_a_spoofed_majority_is_warned_about_and_its_wrong_partitions_listed():
+    # 3 of 5 drones moved together by 40 m: they agree with each other, so the honest pair is
+    # the minority; whatever the detector does, flags and spoofed set cannot match every step
+    sc = Scenario(
+        drones=5,
+        duration_s=4,
+        seed=3,
+        spoof=[{"kind": "area", "drones": [2, 3, 4], "start_s": 1, "magnitude": 40}],
+    )
+    log = run_mission(sc)
+    s = summarize(log, error_series(log))
+    assert any("more than (n-1)//2 = 2" in w for w in s["warnings"])
+    assert s["wrong_partition_step_count"] == len(_wrong_steps_by_hand(log)) > 0
+    assert s["wrong_partition_time_ranges_s"][0][0] >= 1.0
+
+
+def test_no_warning_when_the_honest_drones_are_a_majority(demo):
+    _, summary, _, _ = demo
+    assert summary["warnings"] == []
+
+
+@pytest.fixture(scope="module")
+def small():
+    sc = Scenario(
+        drones=7,
+        duration_s=8,
+        seed=5,
+        spoof=[{"kind": "jump", "drones": [3], "start_s": 1, "magnitude": 30}],
+        outage=[{"drones": [5], "start_s": 2, "end_s": 6}],
+        fault=[{"kind": "crash", "at_s": 4, "drone": 6}],
+    )
+    return run_mission(sc)
+
+
+def test_first_and_sustained_detection_follow_the_flags(small):
+    log = small
+    # rewrite drone 3's flags: flagged at 0.2 s after the start, missed at 0.5 s, then
+    # flagged throughout from 0.8 s; every step committed so that all steps are judged
+    log.committed[:] = True
+    log.missing[:] = False
+    log.faulty[:, 2] = False
+    k0 = 10
+    log.faulty[k0 + 2 : k0 + 5, 2] = True
+    log.faulty[k0 + 8 :, 2] = True
+    (d,) = summarize(log, error_series(log))["detections"]
+    assert d["time_to_first_detection_s"] == pytest.approx(0.2)
+    assert d["time_to_sustained_detection_s"] == pytest.approx(0.8)
+    judged = int(log.alive[k0:, 2].sum())
+    assert d["judged_steps"] == judged
+    assert d["flagged_fraction"] == pytest.approx(round((3 + judged - 8) / judged, 4))
+    # a gap inside the sustain window moves the sustained detection past it
+    hold = int(round(SUSTAIN_S / log.scenario.dt_s))
+    log.faulty[k0 + 8 + hold - 1, 2] = False
+    (d,) = summarize(log, error_series(log))["detections"]
+    assert d["time_to_sustained_detection_s"] == pytest.approx((8 + hold) / 10)
+
+
+def test_worst_error_is_the_largest_error_during_the_spoof(small):
+    log = small
+    errors = error_series(log)
+    (d,) = summarize(log, errors)["detections"]
+    during = errors["swarmraft"][10:, 2]
+    assert d["worst_error_m"] == pytest.approx(np.nanmax(during), abs=1e-3)
+    assert d["worst_error_m"] >= d["mean_error_m"]
+
+
+def test_ins_baseline_is_aligned_at_the_outage_start(small):
+    log = small
+    errors = error_series(log)
+    k0, k1 = 20, 60
+    assert np.isnan(errors["ins_aligned"][:k0, 4]).all() and np.isnan(errors["ins_aligned"][k1:, 4]).all()
+    assert errors["ins_aligned"][k0, 4] == 0.0  # aligned to the truth at the start
+    assert np.isfinite(errors["ins_aligned"][k0:k1, 4]).all()
+    assert np.isnan(errors["ins_aligned"][:, [0, 1, 2, 3, 5, 6]]).all()
+    (o,) = summarize(log, errors)["outages"]
+    # the never-reset INS has already drifted when the outage starts; the aligned one has not
+    assert o["ins_alone_error_at_start_m"] > 0.0
+    assert o["mean_error_ins_aligned_m"] < o["mean_error_ins_alone_m"]
+
+
+def test_honest_error_is_reported_after_each_fault(small):
+    log = small
+    errors = error_series(log)
+    (a,) = summarize(log, errors)["after_faults"]
+    assert a["event"] == "drone 6 crashed" and a["from_s"] == 4.0
+    honest = [0, 1, 3, 4, 6]  # drone 6 is honest but dead after the crash: not counted
+    rows = slice(40, len(log.t))
+    vals = errors["swarmraft"][rows][:, honest][log.alive[rows][:, honest]]
+    assert a["honest_error_swarmraft_m"] == pytest.approx(np.nanmean(vals), abs=1e-3)
+    assert a["honest_error_gnss_m"] is not None
+
+
+def test_mission_json_is_the_summary_and_nothing_else(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text(
+        'name = "tiny"\ndrones = 5\nduration_s = 2\nseed = 2\n'
+        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 1\n'
+    )
+    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o"), "--json"])
+    assert res.exit_code == 0, res.stderr
+    printed = json.loads(res.stdout)
+    assert printed == json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert "wrote" in res.stderr and "wrote" not in res.stdout

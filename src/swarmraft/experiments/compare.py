@@ -10,11 +10,58 @@ import numpy as np
 
 from swarmraft.estimation import get_detector
 from swarmraft.experiments.config import SweepConfig
-from swarmraft.experiments.metrics import CELL_COLUMNS
+from swarmraft.experiments.metrics import CELL_COLUMNS, sem
 from swarmraft.experiments.sweep import SweepResult, run_sweep
-from swarmraft.experiments.tables import write_rows
+from swarmraft.experiments.tables import read_table, write_rows
 
-#: metric column -> (label, log axis, reference line)
+#: standard errors of the compared metrics that cells.csv does not hold, computed per cell
+#: from the sweep's trials.csv (recovered_sem is in cells.csv already)
+SEM_COLUMNS = (
+    "honest_sem",
+    "detection_rate_sem",
+    "false_positive_rate_sem",
+    "identification_rate_sem",
+    "attacked_efficiency_sem",
+)
+
+
+def sem_column(metric: str) -> str:
+    """The column holding a compared metric's standard error."""
+    return metric.removesuffix("_mean") + "_sem"
+
+
+def _ratio_sem(num: np.ndarray, den: np.ndarray) -> float:
+    """Standard error of mean(num) / mean(den) over paired samples (delta method)."""
+    ok = np.isfinite(num) & np.isfinite(den)
+    num, den = num[ok], den[ok]
+    if num.size < 2 or den.mean() <= 0:
+        return float("nan")
+    r = num.mean() / den.mean()
+    return float((num - r * den).std(ddof=1) / np.sqrt(num.size) / den.mean())
+
+
+def cell_sems(trials: dict[str, np.ndarray], n: int, f: int) -> dict[str, float]:
+    """SEM_COLUMNS for one (n, f) cell of a trials table. The efficiency is
+    sqrt(mean squared error / mean bound): its standard error by the delta method."""
+    sel = (np.asarray(trials["n"]) == n) & (np.asarray(trials["f"]) == f)
+
+    def col(name: str) -> np.ndarray:
+        return np.asarray(trials[name], float)[sel]
+
+    sq, bound = col("attacked_sq"), col("attacked_bound")
+    eff = np.sqrt(np.nanmean(sq) / np.nanmean(bound)) if np.isfinite(bound).any() else float("nan")
+    return {
+        "honest_sem": sem(col("honest")),
+        "detection_rate_sem": sem(col("detection_rate")),
+        "false_positive_rate_sem": sem(col("false_positive_rate")),
+        "identification_rate_sem": sem(col("identified")),
+        "attacked_efficiency_sem": _ratio_sem(sq, bound) / (2 * eff)
+        if np.isfinite(eff) and eff > 0
+        else float("nan"),
+    }
+
+
+#: metric column -> (label, log axis allowed, reference line)
 COMPARE_METRICS = {
     "recovered_mean": ("mean error of attacked drones, m", True, None),
     "honest_mean": ("mean error of honest drones, m", True, None),
@@ -36,7 +83,8 @@ def run_compare(
     progress: Callable | None = None,
 ) -> tuple[dict[str, np.ndarray], list[SweepResult]]:
     """One sweep per (attack, detector) into ``out/<attack>/<detector>``; returns the merged
-    cells table (also written to ``out/compare.csv``) and the sweep results."""
+    cells table with the standard errors of SEM_COLUMNS (also written to
+    ``out/compare.csv``) and the sweep results."""
     for d in detectors:
         get_detector(d)  # unknown names fail before any work
     out = Path(out)
@@ -56,7 +104,11 @@ def run_compare(
 
             res = run_sweep(cfg, out / attack / det, workers=workers, scheduler=scheduler, progress=labelled)
             results.append(res)
-            rows += [{c: res.cells[c][i] for c in CELL_COLUMNS} for i in range(len(res.cells["n"]))]
-    write_rows(out / "compare.csv", CELL_COLUMNS, rows)
-    table = {c: np.array([r[c] for r in rows]) for c in CELL_COLUMNS}
+            trials = read_table(res.out / "trials.csv")
+            for i in range(len(res.cells["n"])):
+                row = {c: res.cells[c][i] for c in CELL_COLUMNS}
+                rows.append({**row, **cell_sems(trials, int(row["n"]), int(row["f"]))})
+    columns = (*CELL_COLUMNS, *SEM_COLUMNS)
+    write_rows(out / "compare.csv", columns, rows)
+    table = {c: np.array([r[c] for r in rows]) for c in columns}
     return table, results

@@ -196,6 +196,10 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
     return _save(fig, path)
 
 
+def _cells_text(cells: Sequence[tuple[int, int]]) -> str:
+    return ", ".join(f"({n}, {f})" for n, f in cells)
+
+
 def compare(
     table: Mapping[str, np.ndarray],
     metric: str,
@@ -204,50 +208,84 @@ def compare(
     path: Path,
     reference: float | None = None,
 ) -> Path:
-    """One metric over the (n, f) cells, a line per detector (grouped bars when there is a
-    single cell), a panel per attack; ``reference`` draws a horizontal line (e.g. efficiency 1)."""
+    """One metric per detector and (n, f) cell, a panel per attack: a dot per detector with
+    its 95 % interval (1.96 standard errors, from the table's ``<metric>_sem`` column, or
+    ``recovered_sem`` for ``recovered_mean``), detectors side by side within a cell and no
+    line joining cells. The axis is linear from 0; when ``log`` allows it and the values span
+    more than two decades it is logarithmic (dots only, no bars). ``reference`` draws a
+    horizontal line (e.g. efficiency 1)."""
     attacks = list(dict.fromkeys(np.asarray(table["attack"]).tolist()))
     detectors = list(dict.fromkeys(np.asarray(table["detector"]).tolist()))
-    fig, axes = plt.subplots(1, len(attacks), figsize=(5.5 * len(attacks), 4.3), squeeze=False)
+    values = np.asarray(table[metric], float)
+    sem_name = metric.removesuffix("_mean") + "_sem"
+    sems = np.asarray(table[sem_name], float) if sem_name in table else np.full(values.shape, np.nan)
+    positive = values[np.isfinite(values) & (values > 0)]
+    use_log = bool(log and positive.size and positive.max() / positive.min() > 100)
+    all_cells = sorted({(int(n), int(f)) for n, f in zip(table["n"], table["f"], strict=True)})
+    widest = max(
+        len({(n, f) for n, f, a in zip(table["n"], table["f"], table["attack"], strict=True) if a == atk})
+        for atk in attacks
+    )
+    fig, axes = plt.subplots(
+        1,
+        len(attacks),
+        figsize=(max(4.5, 0.9 + 0.45 * widest * len(detectors)) * len(attacks), 4.6),
+        squeeze=False,
+    )
+    width = 0.8
     for ax, attack in zip(axes[0], attacks, strict=True):
         sel_a = np.asarray(table["attack"]) == attack
         cells = sorted({(int(n), int(f)) for n, f in zip(table["n"][sel_a], table["f"][sel_a], strict=True)})
         xs = np.arange(len(cells))
-        for det in detectors:
+        top = 0.0
+        for k, det in enumerate(detectors):
             sel = sel_a & (np.asarray(table["detector"]) == det)
             val = {
-                (int(n), int(f)): float(v)
-                for n, f, v in zip(table["n"][sel], table["f"][sel], table[metric][sel], strict=True)
+                (int(n), int(f)): i
+                for n, f, i in zip(table["n"][sel], table["f"][sel], np.flatnonzero(sel), strict=True)
             }
-            ys = np.array([val.get(c, np.nan) for c in cells])
-            if log:
+            idx = [val.get(c) for c in cells]
+            ys = np.array([values[i] if i is not None else np.nan for i in idx])
+            es = np.array([1.96 * sems[i] if i is not None else np.nan for i in idx])
+            if use_log:
                 ys = np.where(ys > 0, ys, np.nan)
-            if len(cells) == 1:
-                k = detectors.index(det)
-                bar = ax.bar(k, ys[0], width=0.7, label=det, color=f"C{k}")
-                ax.bar_label(bar, fmt="%.3g", fontsize=8)
+                lower = np.where(np.isfinite(es), np.minimum(es, ys * 0.999), 0.0)
+                yerr = np.vstack([lower, np.nan_to_num(es)])
             else:
-                ax.plot(xs, ys, "o-", label=det)
+                yerr = np.nan_to_num(es)
+            off = (k - (len(detectors) - 1) / 2) * width / len(detectors)
+            ax.errorbar(xs + off, ys, yerr=yerr, fmt="o", ms=5, capsize=3, lw=1.2, color=f"C{k}", label=det)
+            top = max(top, float(np.nanmax(np.append(ys + np.nan_to_num(es), 0.0))))
+        for x in xs[:-1]:
+            ax.axvline(x + 0.5, color="0.8", lw=0.8)
         if reference is not None:
-            ax.axhline(reference, color="k", ls="--", lw=1)
-        if len(cells) == 1:
-            ax.set_xticks(range(len(detectors)), detectors)
-            ax.set_xlabel(f"detector, (n, f) = ({cells[0][0]}, {cells[0][1]})")
-            ax.set_title(f"attack: {attack}", fontsize=10)
-            if log:
-                ax.set_yscale("log")
-            ax.grid(True, axis="y", which="both", ls=":", alpha=0.6)
-            continue
-        ax.set_xticks(xs, [f"({n},{f})" for n, f in cells], rotation=45 if len(cells) > 8 else 0)
+            ax.axhline(reference, color="k", ls="--", lw=1, label=f"reference {reference:g}")
+        ax.set_xticks(xs, [f"({n}, {f})" for n, f in cells], rotation=45 if len(cells) > 8 else 0)
+        ax.set_xlim(-0.5, len(cells) - 0.5)
         ax.set_xlabel("(n, f)")
         ax.set_title(f"attack: {attack}", fontsize=10)
-        if log:
+        if use_log:
             ax.set_yscale("log")
         else:
-            ax.set_ylim(-0.03, 1.03)
-        ax.grid(True, which="both", ls=":", alpha=0.6)
-    axes[0][0].set_ylabel(label)
+            ax.set_ylim(bottom=0)
+            if metric.endswith("_rate"):  # a rate: the whole 0-1 range unless all are small
+                ax.set_ylim(0, 1.03 if top > 0.4 else 1.2 * top + 1e-3)
+        ax.grid(True, axis="y", which="both", ls=":", alpha=0.6)
+    for ax in axes[0]:
+        ax.set_ylabel(label + (" (log axis)" if use_log else ""), fontsize=9)
     axes[0][-1].legend(title="detector", loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    presets = ", ".join(dict.fromkeys(np.asarray(table["preset"]).astype(str).tolist()))
+    trials = sorted({int(t) for t in table["trials"]})
+    trials_text = (
+        f"{trials[0]} trials per cell" if len(trials) == 1 else f"{trials[0]}-{trials[-1]} trials per cell"
+    )
+    interval = "dots: mean, bars: 95 % interval (1.96 standard errors)"
+    if not np.isfinite(sems).any():
+        interval = "dots: mean (no standard error in the table)"
+    fig.suptitle(
+        f"{label}\npreset {presets}, {trials_text}, (n, f) = {_cells_text(all_cells)}\n{interval}",
+        fontsize=10,
+    )
     fig.tight_layout()
     return _save(fig, path)
 

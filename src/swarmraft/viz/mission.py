@@ -91,7 +91,6 @@ def error_over_time(
         _shade(ax, t, ~alive[:, i], "black", "crashed (not reporting)")
         _fault_lines(ax, events, label_it=i < cols)
         ax.set_yscale("symlog", linthresh=LINEAR_BELOW_M, linscale=0.4)
-        ax.set_ylim(bottom=0)
         mine = wrong[:, i]
         if mine.any():
             y = np.nan_to_num(errors["swarmraft"][mine, i], nan=0.0)
@@ -117,6 +116,12 @@ def error_over_time(
             )
         ax.set_title(f"drone {i + 1}", fontsize=9)
         ax.grid(True, which="major", ls=":", alpha=0.5)
+    drawn = np.concatenate([np.ravel(v) for v in errors.values()])
+    drawn = drawn[np.isfinite(drawn)]
+    top = float(drawn.max()) if drawn.size else 1.0
+    # shared axes: limits set once all panels are drawn; the bottom just below 0 so that a
+    # line at exactly 0 shows above the frame
+    axes.flat[0].set_ylim(-0.2 * LINEAR_BELOW_M, max(top, 10 * LINEAR_BELOW_M) * 1.6)
     for ax in axes[-1]:
         ax.set_xlabel("time, s")
     for ax in axes[:, 0]:

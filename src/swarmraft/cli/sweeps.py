@@ -424,7 +424,7 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, se
     rate. Writes curves.csv, roc.png and detection_vs_offset.png."""
     from swarmraft import viz
     from swarmraft.experiments import build_config
-    from swarmraft.experiments.curves import THRESHOLDS, detection_curves
+    from swarmraft.experiments.curves import CURVE_COLUMNS, THRESHOLDS, detection_curves
     from swarmraft.experiments.tables import write_rows
 
     if f > (n - 1) // 2:
@@ -441,8 +441,7 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, se
     prog, start = progress_bar("curves", "points")
     with prog:
         points = detection_curves(config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0))
-    cols = ("detector", "kind", "threshold", "offset", "false_alarm", "detection")
-    write_rows(out / "curves.csv", cols, [p.__dict__ for p in points])
+    write_rows(out / "curves.csv", CURVE_COLUMNS, [p.__dict__ for p in points])
     title = f"preset {preset}, n = {n}, f = {f}, {trials} trials per point"
     console.print(f"wrote {out / 'curves.csv'}")
     console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}")

@@ -25,10 +25,15 @@ THRESHOLDS: dict[str, tuple[str, np.ndarray]] = {
 }
 
 
+#: the columns of curves.csv, one row per CurvePoint
+CURVE_COLUMNS = ("detector", "kind", "parameter", "threshold", "offset", "false_alarm", "detection")
+
+
 @dataclass(frozen=True)
 class CurvePoint:
     detector: str
     kind: str  # "roc" or "offset"
+    parameter: str  # the detector's threshold parameter that is swept (THRESHOLDS)
     threshold: float
     offset: float  # spoof offset, m
     false_alarm: float
@@ -86,14 +91,14 @@ def detection_curves(
         for th in values:
             fa, pd = _rates(config, det, {**base, name: float(th)}, n, f, trials, roc_offset, 0)
             roc.append((float(th), fa, pd))
-            points.append(CurvePoint(det, "roc", float(th), roc_offset, fa, pd))
+            points.append(CurvePoint(det, "roc", name, float(th), roc_offset, fa, pd))
             if tick:
                 tick(1)
         allowed = [r for r in roc if r[1] <= false_alarm]
         th = max(allowed, key=lambda r: (r[2], -r[1]))[0] if allowed else min(roc, key=lambda r: r[1])[0]
         for off in offsets:
             fa, pd = _rates(config, det, {**base, name: th}, n, f, trials, float(off), 1)
-            points.append(CurvePoint(det, "offset", th, float(off), fa, pd))
+            points.append(CurvePoint(det, "offset", name, th, float(off), fa, pd))
             if tick:
                 tick(1)
     return points

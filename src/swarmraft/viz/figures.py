@@ -291,20 +291,44 @@ def compare(
 
 
 def roc(points: Sequence, path: Path, title: str = "") -> Path:
-    """ROC curves: detection rate against false-alarm rate, one curve per detector."""
-    fig, ax = plt.subplots(figsize=(6.2, 5))
-    for det in dict.fromkeys(p.detector for p in points):
-        pts = [(p.false_alarm, p.detection) for p in points if p.detector == det and p.kind == "roc"]
-        fa, pd = zip(*pts, strict=True)  # in threshold order: the curve a threshold traces
-        ax.plot(np.maximum(fa, 1e-5), pd, "o-", ms=3, label=det)
-    ax.set_xscale("log")
-    ax.set_xlabel("false-alarm rate (honest drones flagged; 1e-5 = none)")
+    """ROC curves: detection rate against false-alarm rate, one curve per detector through
+    its operating points sorted by false-alarm rate (then detection rate); the legend names
+    the threshold parameter swept and its values at the two ends. A detector whose flags are
+    not monotone in its threshold zig-zags. The false-alarm axis is logarithmic above 1e-3
+    and linear below, so a false-alarm rate of exactly 0 is drawn at 0."""
+    fig, ax = plt.subplots(figsize=(7.0, 5.4))
+    swept = []
+    for k, det in enumerate(dict.fromkeys(p.detector for p in points if p.kind == "roc")):
+        pts = sorted(
+            (p.false_alarm, p.detection, p.threshold) for p in points if p.detector == det and p.kind == "roc"
+        )
+        name = next(p.parameter for p in points if p.detector == det and p.kind == "roc")
+        swept.append(f"{det}: {name}")
+        fa, pd, th = (np.array(v) for v in zip(*pts, strict=True))
+        ax.plot(
+            fa,
+            pd,
+            "o-",
+            ms=3.5,
+            lw=1.2,
+            color=f"C{k}",
+            label=f"{det}: {name} = {th[0]:.3g} (left) to {th[-1]:.3g} (right)",
+        )
+    ax.set_xscale("symlog", linthresh=1e-3, linscale=0.5)
+    ax.set_xlim(0, 1.05)
+    ax.set_xlabel(
+        "false-alarm rate (honest drones flagged; log above 0.001, linear below)\n"
+        f"threshold swept: {'; '.join(swept)}"
+    )
     ax.set_ylabel("detection rate (attacked drones flagged)")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(True, which="both", ls=":", alpha=0.6)
-    ax.legend(title="detector")
+    ax.legend(title="detector: threshold swept", fontsize=7.5, loc="lower right")
     offset = next(p.offset for p in points if p.kind == "roc")
-    ax.set_title(f"ROC, spoofs of {offset:g} m{chr(10) + title if title else ''}", fontsize=10)
+    ax.set_title(
+        f"ROC, spoofs of {offset:g} m, points sorted by false-alarm rate{chr(10) + title if title else ''}",
+        fontsize=10,
+    )
     return _save(fig, path)
 
 

@@ -175,7 +175,8 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
     kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
     paths = []
     for k in kinds:
-        target = out if (out and kind != "all") else Path(results) / "figures" / f"{k}.png"
+        name = f"{k}_3d.png" if (k == "recovery" and view == "3d") else f"{k}.png"
+        target = out if (out and kind != "all") else Path(results) / "figures" / name
         if k == "scaling":
             paths.append(viz.scaling(cells, target))
         elif k == "distribution":

@@ -38,7 +38,10 @@ def _title(cells: Mapping[str, np.ndarray]) -> str:
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     """Mean error of the attacked drones against n on a log axis: reports (baseline) and
     verified positions, annotated (n, f); one recovered curve per f when the grid has several
-    f per n. Error bars: +/- 1 standard error of the mean."""
+    f per n. Error bars: 95 % intervals (1.96 standard errors of the mean). For the reference
+    preset, the paper's published means (its n = 2f+1 cells) are drawn beside ours."""
+    from swarmraft.experiments.published import PUBLISHED
+
     n, f = np.asarray(cells["n"]), np.asarray(cells["f"])
     fig, ax = plt.subplots(figsize=(7.5, 5))
     diagonal = len(np.unique(n)) == len(n)
@@ -48,7 +51,7 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
         ax.errorbar(
             n[order],
             cells["baseline_mean"][order],
-            yerr=cells["baseline_sem"][order],
+            yerr=1.96 * cells["baseline_sem"][order],
             fmt="s--",
             color="red",
             label="reported (baseline)",
@@ -57,10 +60,10 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
         ax.errorbar(
             n[order],
             rec,
-            yerr=cells["recovered_sem"][order],
+            yerr=1.96 * cells["recovered_sem"][order],
             fmt="o-",
             color="darkorange",
-            label="verified (SwarmRaft)",
+            label="verified (SwarmRaft), 95 % interval",
             capsize=3,
         )
         for ni, fi, r in zip(n[order], f[order], rec, strict=True):
@@ -68,8 +71,8 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
                 f"({ni},{fi})",
                 (ni, r),
                 textcoords="offset points",
-                xytext=(0, 8),
-                ha="center",
+                xytext=(-6, -14),
+                ha="right",
                 fontsize=9,
             )
     else:
@@ -83,13 +86,43 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
             )
         base = [cells["baseline_mean"][n == ni].mean() for ni in np.unique(n)]
         ax.plot(np.unique(n), base, "s--", color="red", label="reported (baseline)")
+    if str(cells["preset"][0]) == "reference":
+        pub = [
+            (ni, PUBLISHED[ni])
+            for ni, fi in zip(n.tolist(), f.tolist(), strict=True)
+            if PUBLISHED.get(ni, (None,))[0] == fi
+        ]
+        if pub:
+            xs = np.array([p[0] for p in pub], float) + 0.3  # beside ours, not on top
+            ax.plot(
+                xs,
+                [p[1][1] for p in pub],
+                "D",
+                ms=8,
+                mfc="none",
+                mec="black",
+                mew=1.3,
+                label="published, verified (drawn at n + 0.3)",
+            )
+            ax.plot(
+                xs,
+                [p[1][2] for p in pub],
+                "D",
+                ms=7,
+                mfc="none",
+                mec="0.45",
+                mew=1.0,
+                label="published, reported",
+            )
     ax.set_yscale("log")
     ax.set_xlabel("swarm size n")
     ax.set_ylabel("mean error of attacked drones, m (log)")
     ax.set_xticks(np.unique(n))
     ax.grid(True, which="both", ls=":", alpha=0.6)
     ax.legend()
-    ax.set_title(f"Error against swarm size\n{_title(cells)}", fontsize=10)
+    trials = sorted({int(t) for t in cells["trials"]})
+    per_cell = f"{trials[0]}" if len(trials) == 1 else f"{trials[0]}-{trials[-1]}"
+    ax.set_title(f"Error against swarm size\n{_title(cells)}, {per_cell} trials per cell", fontsize=10)
     return _save(fig, path)
 
 
@@ -141,7 +174,9 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
 def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = "projections") -> Path:
     """The paper's recovery picture: per case, true positions (green x), reports (red
     triangle), verified positions (yellow star) and arrows from truth to the spoofed reports;
-    ``view`` "3d" or "projections" (XY and XZ)."""
+    ``view`` "3d" or "projections" (XY and XZ). A failed recovery is ringed in red and its
+    error written beside it: an attacked drone left unflagged, or verified farther from its
+    true position than max(1 m, 3 x the RMS error of the honest drones' reports)."""
     if view not in ("3d", "projections"):
         raise ValueError("view must be '3d' or 'projections'")
     k = len(cases)
@@ -156,6 +191,13 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
     names = "XYZ"
     for case, row in zip(cases, axes, strict=True):
         truth, rep, ver, att = case["truth"], case["reported"], case["verified"], case["attackers"]
+        err_all = np.linalg.norm(ver - truth, axis=1)
+        honest_rms = (
+            float(np.sqrt(np.mean(np.sum((rep[~att] - truth[~att]) ** 2, axis=1)))) if (~att).any() else 0.0
+        )
+        limit = max(1.0, 3.0 * honest_rms)
+        flagged = case.get("faulty", att)
+        failed = att & ((err_all > limit) | ~flagged)
         for ax, plane in zip(row, planes, strict=True):
 
             def pts(a: np.ndarray, plane: tuple[int, ...] = plane) -> list[np.ndarray]:
@@ -175,6 +217,25 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
                         xytext=a,
                         arrowprops={"arrowstyle": "->", "color": "grey", "ls": "--", "lw": 1},
                     )
+            if failed.any():
+                ax.scatter(
+                    *pts(ver[failed]),
+                    s=420,
+                    facecolors="none",
+                    edgecolors="red",
+                    linewidths=1.6,
+                    label="failed recovery (not flagged, or error above the limit in the title)",
+                )
+                if len(plane) == 2:
+                    for i in np.flatnonzero(failed):
+                        ax.annotate(
+                            f"{err_all[i]:.3g} m" + ("" if flagged[i] else ", not flagged"),
+                            ver[i, list(plane)],
+                            textcoords="offset points",
+                            xytext=(10, -12),
+                            fontsize=8,
+                            color="red",
+                        )
             ax.set_xlabel(f"{names[plane[0]]} (m)")
             ax.set_ylabel(f"{names[plane[1]]} (m)")
             if len(plane) == 3:
@@ -187,11 +248,16 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
         row[0].set_title(
             f"n = {n}, f = {f}: mean error of attacked drones\n"
             f"reported {np.linalg.norm(rep - truth, axis=1)[att].mean():.1f} m, "
-            f"verified {err:.2g} m",
+            f"verified {err:.2g} m; failed recoveries (limit {limit:.3g} m): {int(failed.sum())} of {f}",
             fontsize=10,
         )
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=3, frameon=False)
+    handles, labels = [], []
+    for row in axes:
+        for h, lab in zip(*row[0].get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return _save(fig, path)
 

@@ -1,0 +1,275 @@
+"""Figures a reviewer would accept: what is drawn, read back from the matplotlib objects."""
+
+import itertools
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from swarmraft import viz
+from swarmraft.cli import main
+from swarmraft.experiments.compare import _ratio_sem, cell_sems
+from swarmraft.experiments.curves import CURVE_COLUMNS, CurvePoint
+from swarmraft.experiments.published import PUBLISHED
+from swarmraft.viz import figures as vf
+from swarmraft.viz import mission as vm
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """The figures drawn, kept open instead of written and closed."""
+    figs = []
+
+    def keep(fig, path):
+        figs.append(fig)
+        return path
+
+    monkeypatch.setattr(vf, "_save", keep)
+    monkeypatch.setattr(vm, "_save", keep)
+    yield figs
+    vf.plt.close("all")
+
+
+def _table(cells, detectors, attack="jump", preset="realistic", trials=200):
+    rows = [
+        {"n": n, "f": f, "detector": d, "attack": attack, "preset": preset, "trials": trials}
+        for (n, f), d in itertools.product(cells, detectors)
+    ]
+    t = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+    rng = np.random.default_rng(0)
+    t["recovered_mean"] = rng.uniform(1, 5, len(rows))
+    t["recovered_sem"] = rng.uniform(0.05, 0.3, len(rows))
+    return t
+
+
+def test_compare_draws_dots_with_95_percent_intervals_and_no_line_between_cells(drawn):
+    t = _table([(9, 3), (13, 3), (17, 8)], ["paper", "joint"])
+    viz.compare(t, "recovered_mean", "mean error, m", True, "x.png")
+    (fig,) = drawn
+    ax = fig.axes[0]
+    dots = [ln for ln in ax.lines if ln.get_marker() == "o"]
+    assert len(dots) == 2
+    for ln in dots:
+        assert ln.get_linestyle() == "None"  # nothing joins the (n, f) cells
+    # the interval of each dot is 1.96 standard errors either side
+    caps = [ln for ln in ax.lines if ln.get_marker() == "_"]
+    tops = np.sort(np.concatenate([ln.get_ydata() for ln in caps]))
+    want = np.sort(
+        np.concatenate(
+            [t["recovered_mean"] - 1.96 * t["recovered_sem"], t["recovered_mean"] + 1.96 * t["recovered_sem"]]
+        )
+    )
+    np.testing.assert_allclose(tops, want)
+    assert ax.get_yscale() == "linear" and ax.get_ylim()[0] == 0
+    title = fig._suptitle.get_text()
+    assert "preset realistic" in title and "200 trials" in title and "(13, 3)" in title
+
+
+def test_compare_uses_a_log_axis_only_without_bars_over_many_decades(drawn):
+    t = _table([(9, 4)], ["paper", "joint"], preset="reference")
+    t["recovered_mean"] = np.array([1.3, 1e-14])
+    viz.compare(t, "recovered_mean", "mean error, m", True, "x.png")
+    ax = drawn[0].axes[0]
+    assert ax.get_yscale() == "log"
+    assert not ax.patches  # no bars
+
+
+def test_roc_points_are_sorted_by_false_alarm_and_the_threshold_is_named(drawn):
+    # thresholds in an order whose false-alarm rates are not monotone
+    pts = [
+        CurvePoint("fde", "roc", "p_fa", th, 10.0, fa, pd)
+        for th, fa, pd in [(1e-6, 0.02, 0.5), (1e-4, 0.0, 0.3), (1e-2, 0.3, 0.9), (1e-1, 0.1, 0.4)]
+    ]
+    viz.roc(pts, "x.png")
+    ax = drawn[0].axes[0]
+    (curve,) = [ln for ln in ax.lines if ln.get_marker() == "o"]
+    assert list(curve.get_xdata()) == [0.0, 0.02, 0.1, 0.3]
+    assert "p_fa" in ax.get_xlabel()
+    assert "parameter" in CURVE_COLUMNS and CURVE_COLUMNS.index("parameter") < CURVE_COLUMNS.index(
+        "threshold"
+    )
+
+
+def test_reference_scaling_shows_the_published_means(drawn):
+    n = np.array([3, 5, 7])
+    cells = {
+        "n": n,
+        "f": (n - 1) // 2,
+        "trials": np.full(3, 100),
+        "preset": np.array(["reference"] * 3),
+        "detector": np.array(["paper"] * 3),
+        "attack": np.array(["jump"] * 3),
+        "baseline_mean": np.full(3, 28.8),
+        "baseline_sem": np.full(3, 0.1),
+        "recovered_mean": np.array([19.0, 5.0, 2.0]),
+        "recovered_sem": np.full(3, 0.1),
+    }
+    viz.scaling(cells, "x.png")
+    ax = drawn[0].axes[0]
+    (pub,) = [ln for ln in ax.lines if ln.get_label().startswith("published, verified")]
+    assert list(pub.get_ydata()) == [PUBLISHED[k][1] for k in (3, 5, 7)]
+    cells["preset"] = np.array(["realistic"] * 3)
+    viz.scaling(cells, "y.png")
+    assert not [ln for ln in drawn[1].axes[0].lines if ln.get_label().startswith("published")]
+
+
+def _errors(S, n):
+    z = np.zeros((S, n))
+    return {
+        "gnss": z + 3.0,
+        "ins_alone": z + 1.0,
+        "ins_aligned": np.full((S, n), np.nan),
+        "swarmraft": z.copy(),  # exact: 0 m
+        "snapshot_bound": np.full((S, n), np.nan),
+    }
+
+
+def test_error_over_time_draws_zero_at_zero_and_no_fault_lines_without_faults(drawn):
+    S, n = 20, 4
+    t = np.arange(S) * 0.1
+    no = np.zeros((S, n), bool)
+    vm.error_over_time(t, _errors(S, n), no, no, [], "x.png")
+    fig = drawn[0]
+    ax = fig.axes[0]
+    (sr,) = [ln for ln in ax.lines if ln.get_label() == "SwarmRaft"]
+    assert (np.asarray(sr.get_ydata()) == 0).all()
+    assert ax.get_ylim()[0] < 0 < ax.get_ylim()[1]  # zero inside the axes, not at a floor
+    assert not [ln for ln in ax.lines if ln.get_label() == "fault"]
+    assert "fault" not in fig._suptitle.get_text()
+
+
+def test_error_over_time_labels_faults_and_marks_wrong_partition_steps(drawn):
+    S, n = 30, 4
+    t = np.arange(S) * 0.1
+    no = np.zeros((S, n), bool)
+    alive = np.ones((S, n), bool)
+    alive[15:, 1] = False
+    wrong = no.copy()
+    wrong[[7, 22], 2] = True
+    vm.error_over_time(
+        t, _errors(S, n), no, no, [(1.5, "leader 2 crashed")], "x.png", alive=alive, wrong=wrong
+    )
+    fig = drawn[0]
+    ax0 = fig.axes[0]
+    assert "leader 2 crashed" in [x.get_text() for x in ax0.texts]
+    (ticks,) = [ln for ln in ax0.lines if ln.get_label() == "wrong-partition step"]
+    assert list(ticks.get_xdata()) == pytest.approx([0.7, 2.2])
+    (mine,) = [ln for ln in fig.axes[2].lines if ln.get_label() == "this drone on the wrong side"]
+    assert list(mine.get_xdata()) == pytest.approx([0.7, 2.2])
+    assert not [ln for ln in fig.axes[0].lines if ln.get_label() == "this drone on the wrong side"]
+    assert [p for p in fig.axes[1].patches if p.get_label() == "crashed (not reporting)"]
+    assert "wrong partition in 2 steps" in fig._suptitle.get_text()
+
+
+def test_swarm_maps_tie_spoofed_reports_to_their_drones_and_labels_do_not_overlap(drawn):
+    rng = np.random.default_rng(3)
+    n = 9
+    truth = np.repeat(rng.uniform(0, 20, (1, n, 3)), 2, axis=0)  # crowded: 9 drones in 20 m
+    rep = truth + rng.normal(0, 1.0, truth.shape)
+    spoofed = np.zeros((2, n), bool)
+    spoofed[:, [1, 4]] = True
+    rep[:, [1, 4]] += [25.0, -10.0, 0.0]
+    alive = np.ones((2, n), bool)
+    alive[:, 6] = False
+    rep[:, 6] = np.nan
+    outage = np.zeros((2, n), bool)
+    outage[:, 8] = True
+    vm.swarm_maps(
+        truth, rep, truth, spoofed, [1], np.arange(2.0), "x.png", spoofed=spoofed, outage=outage, alive=alive
+    )
+    fig = drawn[0]
+    ax = fig.axes[0]
+    ties = [ln for ln in ax.lines if ln.get_label() == "spoofed report - its drone"]
+    ends = sorted(tuple(np.round(ln.get_xydata()[1], 6)) for ln in ties)
+    assert ends == sorted(tuple(np.round(rep[1, i, :2], 6)) for i in (1, 4))
+    labels = dict(zip(*ax.get_legend_handles_labels()[::-1], strict=True))
+    assert "crashed (no report)" in labels and "jammed (reports its INS)" in labels
+    fig.canvas.draw()
+    boxes = [x.get_window_extent() for x in ax.texts]
+    assert len(boxes) == n + 2  # every drone, and the two spoofed reports (n')
+    for a, b in itertools.combinations(boxes, 2):
+        assert not a.overlaps(b)
+
+
+def test_recovery_rings_failed_recoveries(drawn):
+    truth = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [0, 0, 50], [50, 50, 50], [25, 25, 25.0]])
+    att = np.array([1, 1, 0, 0, 0, 0], bool)
+    rep = truth + att[:, None] * 30.0
+    ver = truth.copy()
+    ver[1] += [40.0, 0, 0]  # drone 2 recovered 40 m off
+    case = {"truth": truth, "reported": rep, "verified": ver, "attackers": att, "faulty": att}
+    vf.recovery([case], "x.png")
+    ax = drawn[0].axes[0]
+    (ring,) = [c for c in ax.collections if c.get_label().startswith("failed recovery")]
+    np.testing.assert_allclose(ring.get_offsets(), [ver[1, :2]])
+    assert "40 m" in " ".join(x.get_text() for x in ax.texts)
+    assert "1 of 2" in ax.get_title()
+
+
+def test_recovery_3d_is_its_own_file(tmp_path):
+    out = tmp_path / "r"
+    run = CliRunner().invoke(
+        main,
+        [
+            "sweep",
+            "--preset",
+            "reference",
+            "--n",
+            "6",
+            "--f",
+            "2",
+            "--trials",
+            "10",
+            "--workers",
+            "1",
+            "--out",
+            str(out),
+        ],
+    )
+    assert run.exit_code == 0, run.output
+    assert CliRunner().invoke(main, ["figure", "recovery", str(out)]).exit_code == 0
+    flat = (out / "figures" / "recovery.png").read_bytes()
+    res = CliRunner().invoke(main, ["figure", "recovery", str(out), "--view", "3d"])
+    assert res.exit_code == 0, res.output
+    assert (out / "figures" / "recovery_3d.png").exists()
+    assert (out / "figures" / "recovery.png").read_bytes() == flat
+
+
+def test_efficiency_standard_error_matches_the_spread_of_repeated_experiments():
+    rng = np.random.default_rng(1)
+
+    def sample(size):
+        bound = rng.uniform(1.0, 3.0, size)
+        return bound * rng.chisquare(3, size) / 3 * 2.0, bound  # squared error ~ 2 x bound
+
+    ratios, sems = [], []
+    for _ in range(400):
+        sq, b = sample(200)
+        ratios.append(sq.mean() / b.mean())
+        sems.append(_ratio_sem(sq, b))
+    assert np.mean(sems) == pytest.approx(np.std(ratios), rel=0.1)
+
+
+def test_compare_table_standard_errors_come_from_the_cells_trials():
+    trials = {
+        "n": np.array([9, 9, 9, 13]),
+        "f": np.array([3, 3, 3, 3]),
+        "honest": np.array([1.0, 2.0, 4.0, 100.0]),
+        "detection_rate": np.array([1.0, 0.0, 1.0, 0.0]),
+        "false_positive_rate": np.zeros(4),
+        "identified": np.array([1, 0, 1, 0]),
+        "attacked_sq": np.array([1.0, 2.0, 3.0, 9.0]),
+        "attacked_bound": np.array([1.0, 1.0, 1.0, 1.0]),
+    }
+    s = cell_sems(trials, 9, 3)
+    assert s["honest_sem"] == pytest.approx(np.std([1.0, 2.0, 4.0], ddof=1) / np.sqrt(3))
+    assert s["identification_rate_sem"] == pytest.approx(np.std([1, 0, 1], ddof=1) / np.sqrt(3))
+    # efficiency sqrt(2): its standard error is that of the ratio over 2 sqrt(2)
+    assert s["attacked_efficiency_sem"] == pytest.approx(
+        np.std([1.0, 2.0, 3.0], ddof=1) / np.sqrt(3) / (2 * np.sqrt(2))
+    )
+
+
+def test_curve_points_name_their_threshold_parameter():
+    p = CurvePoint("paper", "roc", "tau", 1.0, 10.0, 0.0, 0.5)
+    assert [getattr(p, c) for c in CURVE_COLUMNS][:4] == ["paper", "roc", "tau", 1.0]

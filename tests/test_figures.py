@@ -273,3 +273,24 @@ def test_compare_table_standard_errors_come_from_the_cells_trials():
 def test_curve_points_name_their_threshold_parameter():
     p = CurvePoint("paper", "roc", "tau", 1.0, 10.0, 0.0, 0.5)
     assert [getattr(p, c) for c in CURVE_COLUMNS][:4] == ["paper", "roc", "tau", 1.0]
+
+
+def test_scaling_draws_tiny_means_where_they_are_not_at_a_floor(drawn):
+    n = np.array([7, 9])
+    cells = {
+        "n": n,
+        "f": (n - 1) // 2,
+        "trials": np.full(2, 100),
+        "preset": np.array(["realistic"] * 2),
+        "detector": np.array(["paper"] * 2),
+        "attack": np.array(["jump"] * 2),
+        "baseline_mean": np.full(2, 28.8),
+        "baseline_sem": np.full(2, 0.1),
+        "recovered_mean": np.array([6.8e-15, 0.0]),
+        "recovered_sem": np.full(2, 1e-16),
+    }
+    viz.scaling(cells, "x.png")
+    ax = drawn[0].axes[0]
+    (rec,) = [c for c in ax.containers if c.get_label().startswith("verified")]
+    assert rec.lines[0].get_ydata()[0] == 6.8e-15
+    assert "(9,4): mean 0 m" in [x.get_text() for x in ax.texts]

@@ -46,7 +46,6 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 5))
     diagonal = len(np.unique(n)) == len(n)
     order = np.argsort(n, kind="stable")
-    floor = 1e-12
     if diagonal:
         ax.errorbar(
             n[order],
@@ -56,7 +55,7 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
             color="red",
             label="reported (baseline)",
         )
-        rec = np.maximum(cells["recovered_mean"][order], floor)
+        rec = np.asarray(cells["recovered_mean"][order], float)
         ax.errorbar(
             n[order],
             rec,
@@ -67,6 +66,8 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
             capsize=3,
         )
         for ni, fi, r in zip(n[order], f[order], rec, strict=True):
+            if not r > 0:
+                continue
             ax.annotate(
                 f"({ni},{fi})",
                 (ni, r),
@@ -80,12 +81,22 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
             sel = order[f[order] == fi]
             ax.plot(
                 n[sel],
-                np.maximum(cells["recovered_mean"][sel], floor),
+                np.where(cells["recovered_mean"][sel] > 0, cells["recovered_mean"][sel], np.nan),
                 "o-",
                 label=f"verified, f = {fi}",
             )
         base = [cells["baseline_mean"][n == ni].mean() for ni in np.unique(n)]
         ax.plot(np.unique(n), base, "s--", color="red", label="reported (baseline)")
+    zero = np.asarray(cells["recovered_mean"]) <= 0
+    for ni, fi in zip(n[zero], f[zero], strict=True):  # a log axis cannot draw 0: say so
+        ax.annotate(
+            f"({ni},{fi}): mean 0 m",
+            (ni, 0.02),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            fontsize=8,
+            color="darkorange",
+        )
     if str(cells["preset"][0]) == "reference":
         pub = [
             (ni, PUBLISHED[ni])

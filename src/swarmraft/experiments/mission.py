@@ -17,7 +17,7 @@ from swarmraft.estimation.registry import one_line
 from swarmraft.experiments.config import ConfigError, read_toml
 from swarmraft.experiments.tables import write_rows
 from swarmraft.sim.mission import MissionLog, run_mission
-from swarmraft.sim.scenario import Scenario
+from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 
 STEP_COLUMNS = (
     "step",
@@ -54,8 +54,14 @@ STEP_COLUMNS = (
 
 
 def load_scenario(path: str | Path, **overrides: Any) -> Scenario:
-    """A scenario from a TOML file; a bad file is a one-line ConfigError naming the field."""
-    path = Path(path)
+    """A scenario from a TOML file, or a shipped scenario by name (``demo``); a bad file is a
+    one-line ConfigError naming the field."""
+    path = find_scenario(path)
+    if not path.exists():
+        raise ConfigError(
+            f"--scenario: no file {path} and no shipped scenario of that name "
+            f"(shipped: {', '.join(shipped_scenarios())})"
+        )
     data = read_toml(path, "--scenario")
     data.update({k: v for k, v in overrides.items() if v is not None})
     try:

@@ -7,13 +7,38 @@ docs/scenarios.md: GNSS 1.5/3 m with Gauss-Markov tau 120 s, UWB 0.10 m, drone-g
 
 from __future__ import annotations
 
+from importlib import resources
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+#: a scenario's name names its output folder: one path component, no leading dot
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """The scenarios shipped with the package (``swarmraft/scenarios/*.toml``), by name."""
+    folder = resources.files("swarmraft") / "scenarios"
+    return {
+        p.name.removesuffix(".toml"): Path(str(p))
+        for p in sorted(folder.iterdir(), key=lambda p: p.name)
+        if p.name.endswith(".toml")
+    }
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """The file a ``--scenario`` value stands for: an existing file, else the shipped scenario
+    of that name (``demo`` or ``demo.toml``), else the path as given (reading it then fails
+    naming it)."""
+    path = Path(name_or_path)
+    if path.is_file() or path.parent != Path("."):
+        return path
+    return shipped_scenarios().get(path.name.removesuffix(".toml"), path)
+
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class MotionConfig(_Strict):
@@ -88,7 +113,7 @@ class FaultConfig(_Strict):
 
 
 class Scenario(_Strict):
-    name: str = "mission"
+    name: str = Field("mission", pattern=NAME_PATTERN, description="names the output folder")
     seed: int = Field(1, ge=0)
     drones: int = Field(9, ge=4, le=64)
     duration_s: float = Field(60.0, gt=0)
@@ -112,14 +137,28 @@ class Scenario(_Strict):
             if bad:
                 raise ValueError(f"{where}: drone ids must be in 1..{self.drones}, got {bad}")
 
+        def timed(start: float, end: float | None, where: str) -> None:
+            if start >= self.duration_s:
+                raise ValueError(
+                    f"{where}.start_s: {start:g} s is not before the mission's end ({self.duration_s:g} s)"
+                )
+            if end is not None and end <= start:
+                raise ValueError(f"{where}.end_s: {end:g} s is not after start_s = {start:g} s")
+
         for k, s in enumerate(self.spoof):
+            timed(s.start_s, s.end_s, f"spoof[{k}]")
             check(s.drones, f"spoof[{k}].drones")
             check(s.pivots, f"spoof[{k}].pivots")
             if s.kind == "collusion" and not 1 <= len(s.pivots) <= 3:
                 raise ValueError(f"spoof[{k}].pivots: collusion needs 1 to 3 pivot drones")
         for k, o in enumerate(self.outage):
+            timed(o.start_s, o.end_s, f"outage[{k}]")
             check(o.drones, f"outage[{k}].drones")
         for k, f in enumerate(self.fault):
+            if f.at_s >= self.duration_s:
+                raise ValueError(
+                    f"fault[{k}].at_s: {f.at_s:g} s is not before the mission's end ({self.duration_s:g} s)"
+                )
             if f.kind in ("crash", "restart") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
             if f.drone is not None:

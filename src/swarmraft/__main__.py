@@ -1,0 +1,5 @@
+"""`python -m swarmraft`: the `swarmraft` command."""
+
+from swarmraft.cli import main
+
+main()

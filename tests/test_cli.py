@@ -38,7 +38,7 @@ def test_sweep_writes_tables_and_says_where(results):
     for name in ("cells.csv", "trials.csv", "run.json"):
         assert (out / name).exists()
         assert f"wrote {out / name}" in text
-    assert "recovered mean" in text
+    assert "mean, sem, med, p99: the attacked drones after recovery" in text
 
 
 @pytest.mark.parametrize("kind", ["scaling", "distribution", "recovery"])

@@ -3,6 +3,7 @@ one-line error naming the problem (exit status 2). Commands live in modules by t
 register themselves on `main` when imported here."""
 
 from swarmraft.cli import demo, missions, raft, sweeps  # noqa: F401  (register the commands)
-from swarmraft.cli.app import ATTACK_NAMES, main
+from swarmraft.cli.app import main
+from swarmraft.cli.options import ATTACK_NAMES
 
 __all__ = ["ATTACK_NAMES", "main"]

@@ -1,9 +1,9 @@
 """The `swarmraft` command group and what its commands share: consoles, one-line errors,
-progress bars, option types and the sweep-config builder."""
+exit statuses (2 for bad input, 130 on Ctrl-C), progress bars and printing a table with its
+legend. Shared options are in `swarmraft.cli.options`, the tables in `swarmraft.cli.tables`."""
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -40,7 +40,10 @@ class _Group(click.Group):
         except click.UsageError as exc:
             hint = f" (see `{exc.ctx.command_path} --help`)" if exc.ctx else ""
             _fail(" ".join(f"{exc.format_message()}{hint}".split()))
-        except click.exceptions.Abort:
+        except click.exceptions.Abort as exc:
+            if isinstance(exc.__cause__, KeyboardInterrupt):
+                err_console.print("interrupted", soft_wrap=True)
+                sys.exit(130)
             _fail("aborted")
         except click.exceptions.Exit as exc:
             sys.exit(exc.exit_code)
@@ -53,42 +56,6 @@ class _Group(click.Group):
                 raise
             text = str(exc).strip()
             _fail(text.splitlines()[0] if text else type(exc).__name__)
-
-
-def _int_list(text: str | None, name: str) -> tuple[int, ...] | None:
-    """'3,5,7' or '3-17' or '3-17:2' -> ints."""
-    if text is None:
-        return None
-    out: list[int] = []
-    try:
-        for part in text.split(","):
-            part = part.strip()
-            if "-" in part:
-                rng, _, step = part.partition(":")
-                lo, hi = (int(v) for v in rng.split("-"))
-                out += list(range(lo, hi + 1, int(step) if step else 1))
-            elif part:
-                out.append(int(part))
-    except ValueError:
-        raise click.BadParameter(
-            f"expected integers like 3,5,7 or 3-17:2, got {text!r}", param_hint=name
-        ) from None
-    if not out:
-        raise click.BadParameter("no values given", param_hint=name)
-    return tuple(out)
-
-
-def _params(items: tuple[str, ...]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--param")
-        try:
-            out[key.strip()] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key.strip()] = value
-    return out
 
 
 def progress_bar(
@@ -115,39 +82,12 @@ def progress_bar(
     return prog, start
 
 
-def _summary_table(cells: dict, title: str) -> Table:
-    t = Table(title=title, title_justify="left")
-    for col in (
-        "n",
-        "f",
-        "trials",
-        "baseline m",
-        "recovered mean m",
-        "+/- sem",
-        "median m",
-        "p99 m",
-        ">1 m",
-        "honest m",
-        "detect",
-        "false pos",
-    ):
-        t.add_column(col, justify="right")
-    for i in range(len(cells["n"])):
-        t.add_row(
-            str(cells["n"][i]),
-            str(cells["f"][i]),
-            str(cells["trials"][i]),
-            f"{cells['baseline_mean'][i]:.2f}",
-            f"{cells['recovered_mean'][i]:.3g}",
-            f"{cells['recovered_sem'][i]:.2g}",
-            f"{cells['recovered_median'][i]:.2g}",
-            f"{cells['recovered_p99'][i]:.3g}",
-            f"{cells['frac_over_1m'][i]:.1%}",
-            f"{cells['honest_mean'][i]:.3g}",
-            f"{cells['detection_rate'][i]:.1%}",
-            f"{cells['false_positive_rate'][i]:.1%}",
-        )
-    return t
+def print_table(table_and_legend: tuple[Table, str], to: Console | None = None) -> None:
+    """A table from `swarmraft.cli.tables` with its legend under it."""
+    table, legend = table_and_legend
+    out = to or console
+    out.print(table)
+    out.print(f"[dim]{legend}[/]", width=min(out.width, 80))
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -157,30 +97,3 @@ def main() -> None:
 
     Run `swarmraft COMMAND --help` for each command's options.
     """
-
-
-def _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
-    """A validated SweepConfig from a preset, an optional TOML file and command-line flags
-    (flags override the file, the file overrides the preset)."""
-    from swarmraft.experiments import build_config
-    from swarmraft.experiments.config import read_toml
-
-    settings: dict[str, Any] = {}
-    if config_file is not None:
-        settings = read_toml(config_file, "--config")
-        preset = settings.pop("preset", preset)
-    overrides = {
-        "n": _int_list(n_text, "--n"),
-        "f": _int_list(f_text, "--f"),
-        "diagonal": diagonal or None,
-        "trials": trials,
-        "seed": seed,
-        **extra,
-    }
-    return build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})
-
-
-PRESET = click.Choice(["reference", "realistic"])
-ATTACK_NAMES = ["jump", "range-tamper", "range-bias", "collusion-1", "collusion-2", "collusion-3", "area"]
-WORKERS = click.option("--workers", type=int, help="local worker processes [default: all cores]")
-SCHEDULER = click.option("--scheduler", help="Dask scheduler tcp://HOST:PORT, or 'local' for a LocalCluster.")

@@ -6,46 +6,51 @@ from pathlib import Path
 
 import click
 
-from swarmraft.cli.app import (
-    WORKERS,
-    _summary_table,
-    console,
-    main,
-    progress_bar,
-)
+from swarmraft.cli.app import console, main, print_table, progress_bar
 from swarmraft.cli.missions import mission_figures, print_mission_summary
+from swarmraft.cli.options import WORKERS, OutFolder
 from swarmraft.cli.sweeps import _calibration_line, draw_figures, report_compare
+from swarmraft.cli.tables import summary_table
 
 
 @main.command()
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("results/demo"),
+    type=OutFolder(),
+    default="results/demo",
     show_default=True,
     help="folder for everything the demo writes",
 )
-@click.option("--trials", type=int, default=2000, show_default=True, help="trials per cell")
+@click.option("--trials", type=click.IntRange(min=1), default=2000, show_default=True, help="trials per cell")
 @WORKERS
 @click.option(
     "--scenario",
     "scenario_file",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("scenarios/demo.toml"),
+    default="demo",
     show_default=True,
-    help="the demo mission",
+    help="the demo mission: a scenario file, or the name of a shipped one",
 )
 def demo(out, trials, workers, scenario_file) -> None:
     """The demo job. First a 60 s mission of 9 drones in the simulator (spoofing, a GNSS
-    outage and a leader crash; scenarios/demo.toml), its summary and figures; then a reference
+    outage and a leader crash; the shipped scenario `demo`), its summary and figures; then a reference
     sweep (the paper's experiment with fewer trials) compared with the published numbers, a
     realistic sweep, and the four detectors compared on identical realistic trials."""
     from swarmraft.experiments import build_config, run_sweep
     from swarmraft.experiments.mission import load_scenario, run_and_write
     from swarmraft.experiments.published import compare_published
+    from swarmraft.experiments.sweep import check_resume
 
     written: list[Path] = []
+    # everything the demo will run, validated before the first step
     sc = load_scenario(scenario_file)
+    configs = {
+        "reference": build_config("reference", diagonal=True, trials=trials),
+        "realistic": build_config("realistic", diagonal=True, trials=max(1, trials // 2)),
+    }
+    n_compare = max(1, trials // 8)
+    compare_config = build_config("realistic", n=(17,), f=(8,), trials=n_compare)
+    for preset, config in configs.items():
+        check_resume(out / preset, config)
     folder = out / "mission"
     console.rule(f"[bold]mission[/] {sc.name}: {sc.drones} drones, {sc.duration_s:g} s -> {folder}")
     prog, start = progress_bar("mission", "steps")
@@ -53,21 +58,21 @@ def demo(out, trials, workers, scenario_file) -> None:
         result = run_and_write(sc, folder, start(sc.steps + 1, 0))
     print_mission_summary(result.summary)
     written += [folder / "steps.csv", folder / "summary.json", *mission_figures(result, folder)]
-    for preset, n_trials in (("reference", trials), ("realistic", max(1, trials // 2))):
-        config = build_config(preset, diagonal=True, trials=n_trials)
+    for preset, config in configs.items():
         folder = out / preset
-        console.rule(f"[bold]{preset} preset[/]: n = 2f+1, {n_trials} trials per cell -> {folder}")
+        console.rule(f"[bold]{preset} preset[/]: n = 2f+1, {config.trials} trials per cell -> {folder}")
         prog, start = progress_bar(preset)
         with prog:
             result = run_sweep(config, folder, workers=workers, progress=start)
-        console.print(_summary_table(result.cells, f"{preset}: mean error of attacked drones"))
+        print_table(summary_table(result.cells, f"{preset}: mean error of attacked drones"))
         if preset == "reference":
             rows = compare_published(result.cells)
             worst = max(abs(r["z"]) for r in rows)
             console.print(
                 f"against the paper's published means: largest |z| = {worst:.2f} "
                 f"({sum(r['ok'] for r in rows)}/{len(rows)} cells within 3 standard errors); "
-                f"`swarmraft check {folder}` prints the table"
+                f"`swarmraft check {folder}` prints the table",
+                soft_wrap=True,
             )
         if line := _calibration_line(folder):
             console.print(line)
@@ -76,17 +81,20 @@ def demo(out, trials, workers, scenario_file) -> None:
     from swarmraft.experiments.compare import run_compare
 
     folder = out / "compare"
-    n_trials = max(1, trials // 8)
     console.rule(
-        f"[bold]detectors compared[/]: realistic, n = 17, f = 8, {n_trials} identical trials -> {folder}"
+        f"[bold]detectors compared[/]: realistic, n = 17, f = 8, {n_compare} identical trials -> {folder}"
     )
-    config = build_config("realistic", n=(17,), f=(8,), trials=n_trials)
     prog, start = progress_bar("compare")
     with prog:
         table, _ = run_compare(
-            config, ["paper", "clique", "fde", "joint"], ["jump"], folder, workers=workers, progress=start
+            compare_config,
+            ["paper", "clique", "fde", "joint"],
+            ["jump"],
+            folder,
+            workers=workers,
+            progress=start,
         )
     written += report_compare(table, folder, "mean error (m) and efficiency against the Cramér-Rao bound")
     console.rule("[bold]written[/]")
     for p in written:
-        console.print(f"  {p}")
+        console.print(f"  {p}", soft_wrap=True)

@@ -13,6 +13,7 @@ from swarmraft.cli.app import (
     main,
     progress_bar,
 )
+from swarmraft.cli.options import OutFolder
 
 
 def mission_figures(result, out: Path) -> list[Path]:
@@ -167,11 +168,10 @@ def print_mission_summary(summary: dict) -> None:
     "scenario_file",
     required=True,
     type=click.Path(dir_okay=False, path_type=Path),
-    help="scenario TOML file (see scenarios/)",
+    help="scenario TOML file, or the name of a shipped one: demo, drag-off, jammed-drone, "
+    "leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
 )
-@click.option(
-    "--out", type=click.Path(file_okay=False, path_type=Path), help="output folder [results/<name>]"
-)
+@click.option("--out", type=OutFolder(), help="output folder [results/<name>]")
 @click.option("--seed", type=int, help="override the scenario's seed")
 @click.option("--detector", help="override the scenario's detector")
 @click.option(

@@ -24,7 +24,13 @@ from swarmraft.cli.app import (
     show_default=True,
     help="first seed (a failing seed replays with --seed-start S --seeds 1)",
 )
-@click.option("--nodes", type=click.IntRange(min=1), default=5, show_default=True)
+@click.option(
+    "--nodes",
+    type=click.IntRange(min=3),
+    default=5,
+    show_default=True,
+    help="cluster size (3 or more: the runs partition the cluster and crash nodes)",
+)
 @click.option(
     "--fault-ms",
     type=click.FloatRange(min=0),

@@ -8,20 +8,25 @@ from pathlib import Path
 
 import click
 import numpy as np
-from rich.table import Table
 
-from swarmraft.cli.app import (
+from swarmraft.cli.app import console, err_console, main, print_table, progress_bar
+from swarmraft.cli.options import (
     ATTACK_NAMES,
     PRESET,
     SCHEDULER,
     WORKERS,
-    _int_list,
-    _params,
-    _summary_table,
-    _sweep_config,
-    console,
-    main,
-    progress_bar,
+    OutFolder,
+    int_list,
+    key_values,
+    name_list,
+    sweep_config,
+)
+from swarmraft.cli.tables import (
+    calibration_table,
+    check_legend,
+    check_table,
+    compare_table,
+    summary_table,
 )
 
 
@@ -42,7 +47,7 @@ from swarmraft.cli.app import (
 @click.option("--n", "n_text", help="swarm sizes: 3,5,7 or 3-17 or 3-17:2 [default 3-17:2]")
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1 (as the paper).")
-@click.option("--trials", type=int, help="trials per cell [default 10000]")
+@click.option("--trials", type=click.IntRange(min=1), help="trials per cell [default 10000]")
 @click.option("--seed", type=int, help="master seed [default 2025]")
 @click.option("--detector", help="registered detector name [default paper]")
 @click.option(
@@ -61,7 +66,7 @@ from swarmraft.cli.app import (
 @SCHEDULER
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutFolder(),
     help="results folder [default results/<preset>]; an existing one is resumed.",
 )
 def sweep(
@@ -82,11 +87,14 @@ def sweep(
     """Monte Carlo sweep over swarm size n and attacker count f.
 
     Writes cells.csv (one row per (n, f)), trials.csv (one row per trial) and run.json
-    (config, seed, version). Cells already in --out are not recomputed.
+    (config, seed, version, and each run's executor and time). Cells already in --out are not
+    recomputed; a folder made with another seed or config is refused.
     """
     from swarmraft.experiments import run_sweep
+    from swarmraft.experiments.executors import check_executor
+    from swarmraft.experiments.sweep import check_resume
 
-    config = _sweep_config(
+    config = sweep_config(
         preset,
         config_file,
         n_text,
@@ -96,33 +104,38 @@ def sweep(
         seed,
         {
             "detector": detector,
-            "detector_params": _params(params) or None,
+            "detector_params": key_values(params) or None,
             "attack": {"name": attack} if attack else None,
         },
     )
     out = out or Path("results") / config.preset
+    check_executor(workers, scheduler)
+    check_resume(out, config)
     cells = config.cells()
     console.print(
         f"sweep: preset {config.preset}, detector {config.detector}, attack "
         f"{config.attack.name}, {len(cells)} cells x {config.trials} trials, "
-        f"seed {config.seed} -> {out}"
+        f"seed {config.seed} -> {out}",
+        soft_wrap=True,
     )
     prog, start = progress_bar("sweep")
     with prog:
         result = run_sweep(config, out, workers=workers, scheduler=scheduler, progress=start)
     if result.reused:
-        console.print(f"reused {len(result.reused)} finished cells from {out}")
-    console.print(_summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
+        console.print(f"reused {len(result.reused)} finished cells from {out}", soft_wrap=True)
+    print_table(summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
     if line := _calibration_line(out):
         console.print(line)
     console.print(f"done in {result.seconds:.1f} s on {result.executor}")
     for p in result.paths:
-        console.print(f"  wrote {p}")
+        console.print(f"  wrote {p}", soft_wrap=True)
 
 
 def _calibration_line(out: Path) -> str | None:
     """The calibrated thresholds of a results folder, in one line (None if none ran)."""
-    cal = json.loads((Path(out) / "run.json").read_text()).get("calibration", {})
+    from swarmraft.experiments.sweep import read_run
+
+    cal = read_run(out).get("calibration", {})
     if not cal:
         return None
     taus = [c["tau"] for c in cal.values()]
@@ -132,16 +145,6 @@ def _calibration_line(out: Path) -> str | None:
         f"{', '.join(sorted(cal, key=int))}: tau {min(taus):.2f}-{max(taus):.2f} m, "
         f"epsilon {min(eps):.2f}-{max(eps):.2f} m"
     )
-
-
-def _load_results(results: Path) -> tuple[dict, dict, dict]:
-    from swarmraft.experiments.tables import read_table
-
-    if not (results / "cells.csv").exists():
-        raise FileNotFoundError(f"{results}: no cells.csv here; run `swarmraft sweep --out {results}` first")
-    run = json.loads((results / "run.json").read_text())
-    trials = read_table(results / "trials.csv") if (results / "trials.csv").exists() else {}
-    return read_table(results / "cells.csv"), trials, run
 
 
 @main.command()
@@ -163,15 +166,18 @@ def figure(kind, results, out, view) -> None:
     folder's config and seed; all: the three.
     """
     for path in draw_figures(kind, results, out, view):
-        console.print(f"wrote {path}")
+        console.print(f"wrote {path}", soft_wrap=True)
 
 
 def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = "projections") -> list[Path]:
     from swarmraft import viz
     from swarmraft.experiments import SweepConfig
     from swarmraft.experiments.cases import recovery_cases
+    from swarmraft.experiments.sweep import load_results
 
-    cells, trials, run = _load_results(Path(results))
+    cells, trials, run = load_results(Path(results))
+    if kind in ("distribution", "all") and not trials:
+        raise ValueError(f"{Path(results) / 'trials.csv'}: missing; the distribution figure needs it")
     kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
     paths = []
     for k in kinds:
@@ -190,50 +196,42 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
 
 @main.command()
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
-def check(results) -> None:
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="print the comparison as JSON on stdout (criteria, one object per cell, pass)",
+)
+def check(results, as_json) -> None:
     """Compare a reference sweep with the paper's published means (docs/models.md).
 
     Passes when every recovered mean is within 3 standard errors of the published one and
     every baseline within 0.3 m; exits 1 otherwise.
     """
     from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, compare_published
+    from swarmraft.experiments.sweep import load_results
 
-    cells, _, run = _load_results(Path(results))
-    if run["config"]["preset"] != "reference":
+    cells, _, run = load_results(Path(results))
+    preset = run["config"].get("preset")
+    if preset != "reference":
         raise ValueError(
-            f"{results}: the published numbers are for --preset reference, "
-            f"this folder is {run['config']['preset']!r}"
+            f"{results}: the published numbers are for --preset reference, this folder is {preset!r}"
         )
     rows = compare_published(cells)
     if not rows:
         raise ValueError(f"{results}: no cell with n = 2f+1 for f = 1..8 to compare")
-    t = Table(title=f"{results} against the published means", title_justify="left")
-    for col in (
-        "n (f)",
-        "trials",
-        "recovered m",
-        "sem",
-        "published m",
-        "z",
-        "baseline m",
-        "published",
-        "ok",
-    ):
-        t.add_column(col, justify="right")
-    for r in rows:
-        t.add_row(
-            f"{r['n']} ({r['f']})",
-            str(r["trials"]),
-            f"{r['recovered']:.3f}",
-            f"{r['sem']:.3f}",
-            f"{r['published']:.3f}",
-            f"{r['z']:+.2f}",
-            f"{r['baseline']:.2f}",
-            f"{r['published_baseline']:.1f}",
-            "yes" if r["ok"] else "[red]NO[/]",
-        )
-    console.print(t)
     bad = [r for r in rows if not r["ok"]]
+    if as_json:
+        report = {
+            "results": str(results),
+            "criteria": {"max_abs_z": MAX_Z, "max_baseline_gap_m": MAX_BASELINE_GAP},
+            "cells": rows,
+            "pass": not bad,
+        }
+        click.echo(json.dumps(json_safe(report), indent=2))
+        sys.exit(1 if bad else 0)
+    title = f"{results} against the published means"
+    print_table(check_table(rows, title, check_legend(MAX_Z, MAX_BASELINE_GAP)))
     console.print(
         f"criteria: |z| <= {MAX_Z}, baseline within {MAX_BASELINE_GAP} m: "
         + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
@@ -241,45 +239,27 @@ def check(results) -> None:
     sys.exit(1 if bad else 0)
 
 
-def report_compare(table: dict, out: Path, title: str) -> list[Path]:
-    """Print a comparison table and draw one figure per metric into ``out/figures``; returns
-    what was written (compare.csv, written by run_compare, included)."""
+def json_safe(value: object) -> object:
+    """``value`` with numpy scalars as Python numbers and nan or inf as null (valid JSON)."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
+    """Print a comparison table (on ``to``, default the console) and draw one figure per
+    metric into ``out/figures``; returns what was written (compare.csv, written by
+    run_compare, included)."""
     from swarmraft import viz
     from swarmraft.experiments.compare import COMPARE_METRICS
 
-    t = Table(title=title, title_justify="left")
-    for col in (
-        "attack",
-        "detector",
-        "n",
-        "f",
-        "attacked m",
-        "honest m",
-        "raw GNSS m",
-        "efficiency",
-        "detect",
-        "false pos",
-        "identified",
-        "unidentifiable",
-    ):
-        t.add_column(col, justify="right")
-    for i in range(len(table["n"])):
-        eff = table["attacked_efficiency"][i]
-        t.add_row(
-            str(table["attack"][i]),
-            str(table["detector"][i]),
-            str(table["n"][i]),
-            str(table["f"][i]),
-            f"{table['recovered_mean'][i]:.3g}",
-            f"{table['honest_mean'][i]:.3g}",
-            f"{table['honest_baseline_mean'][i]:.3g}",
-            "-" if np.isnan(eff) else f"{eff:.2f}",
-            f"{table['detection_rate'][i]:.1%}",
-            f"{table['false_positive_rate'][i]:.1%}",
-            f"{table['identification_rate'][i]:.1%}",
-            f"{table['status_unidentifiable'][i]:.1%}",
-        )
-    console.print(t)
+    print_table(compare_table(table, title), to)
     written = [Path(out) / "compare.csv"]
     for metric, (label, log, ref) in COMPARE_METRICS.items():
         if not np.isnan(np.asarray(table[metric], float)).all():
@@ -309,17 +289,36 @@ def report_compare(table: dict, out: Path, title: str) -> list[Path]:
 @click.option("--n", "n_text", default="9,13,17", show_default=True, help="swarm sizes")
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
-@click.option("--trials", type=int, default=1000, show_default=True, help="trials per cell")
+@click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True, help="trials per cell")
 @click.option("--seed", type=int, help="master seed [default 2025]")
 @WORKERS
 @SCHEDULER
 @click.option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutFolder(),
     help="results folder [default results/compare-<preset>]",
 )
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="print the comparison as JSON on stdout, one object per row of compare.csv "
+    "(the lines saying what was written go to stderr)",
+)
 def compare_cmd(
-    preset, config_file, detectors, attacks, n_text, f_text, diagonal, trials, seed, workers, scheduler, out
+    preset,
+    config_file,
+    detectors,
+    attacks,
+    n_text,
+    f_text,
+    diagonal,
+    trials,
+    seed,
+    workers,
+    scheduler,
+    out,
+    as_json,
 ) -> None:
     """Run several detectors on identical trials and compare them.
 
@@ -328,24 +327,28 @@ def compare_cmd(
     honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
     identification rates.
     """
+    from swarmraft.estimation import detector_names
     from swarmraft.experiments.compare import run_compare
 
-    dets = [d.strip() for d in detectors.split(",") if d.strip()]
-    atks = [a.strip() for a in attacks.split(",") if a.strip()]
-    for a in atks:
-        if a not in ATTACK_NAMES:
-            raise ValueError(f"--attacks: unknown attack {a!r}; known: {', '.join(ATTACK_NAMES)}")
-    config = _sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
+    atks = name_list(attacks, "--attacks", ATTACK_NAMES, "attack")
+    config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
     out = out or Path("results") / f"compare-{config.preset}"
-    console.print(
+    say = err_console if as_json else console
+    say.print(
         f"compare: {', '.join(dets)} on {', '.join(atks)}, preset {config.preset}, "
-        f"{len(config.cells())} cells x {config.trials} trials -> {out}"
+        f"{len(config.cells())} cells x {config.trials} trials -> {out}",
+        soft_wrap=True,
     )
     prog, start = progress_bar("compare")
     with prog:
         table, _ = run_compare(config, dets, atks, out, workers=workers, scheduler=scheduler, progress=start)
-    for path in report_compare(table, out, "detectors on identical trials"):
-        console.print(f"wrote {path}")
+    written = report_compare(table, out, "detectors on identical trials", to=err_console if as_json else None)
+    if as_json:
+        rows = [{k: table[k][i] for k in table} for i in range(len(table["n"]))]
+        click.echo(json.dumps(json_safe(rows), indent=2))
+    for path in written:
+        say.print(f"wrote {path}", soft_wrap=True)
 
 
 @main.command()
@@ -355,38 +358,20 @@ def compare_cmd(
     default="realistic",
     show_default=True,
 )
-@click.option("--n", "n_text", default="17", show_default=True, help="swarm sizes")
-@click.option("--trials", type=int, default=2000, show_default=True)
+@click.option("--n", "n_text", default="17", show_default=True, help="swarm sizes (3 or more)")
+@click.option(
+    "--trials", type=click.IntRange(min=10), default=2000, show_default=True, help="honest snapshots"
+)
 @click.option("--seed", type=int, default=2025, show_default=True)
 def calibrate(preset, n_text, trials, seed) -> None:
     """Calibrate tau and epsilon (mu_e + 3 sigma_e of honest residuals, paper III.E)."""
     from swarmraft.experiments import build_config
     from swarmraft.experiments.calibration import calibrate_cell
 
-    config = build_config(preset, seed=seed, calibration_trials=trials)
-    t = Table(title=f"calibration, preset {preset}, {trials} honest snapshots", title_justify="left")
-    for col in (
-        "n",
-        "tau m",
-        "pair mu",
-        "pair sigma",
-        "epsilon m",
-        "recovery mu",
-        "recovery sigma",
-    ):
-        t.add_column(col, justify="right")
-    for n in _int_list(n_text, "--n") or ():
-        c = calibrate_cell(config, n)
-        t.add_row(
-            str(n),
-            f"{c.tau:.3f}",
-            f"{c.pair_mean:.3f}",
-            f"{c.pair_std:.3f}",
-            f"{c.epsilon:.3f}",
-            f"{c.recovery_mean:.3f}",
-            f"{c.recovery_std:.3f}",
-        )
-    console.print(t)
+    ns = int_list(n_text, "--n")
+    config = build_config(preset, n=ns, seed=seed, calibration_trials=trials)
+    rows = [(n, calibrate_cell(config, n)) for n in ns]
+    print_table(calibration_table(rows, f"calibration, preset {preset}, {trials} honest snapshots"))
 
 
 @main.command()
@@ -413,12 +398,7 @@ def calibrate(preset, n_text, trials, seed) -> None:
     help="spoof offset of the ROC trials, m",
 )
 @click.option("--seed", type=int, default=2025, show_default=True)
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("results/curves"),
-    show_default=True,
-)
+@click.option("--out", type=OutFolder(), default="results/curves", show_default=True)
 def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, seed, out) -> None:
     """Detection curves per detector: ROC (detection against false-alarm rate as the
     threshold moves) and detection probability against spoof offset at a fixed false-alarm
@@ -430,7 +410,9 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, se
 
     if f > (n - 1) // 2:
         raise ValueError(f"--f: {f} attackers need n >= {2 * f + 1}")
-    dets = [d.strip() for d in detectors.split(",") if d.strip()]
+    from swarmraft.estimation import detector_names
+
+    dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     try:
         offs = [float(v) for v in offsets.split(",")]
     except ValueError:
@@ -444,10 +426,11 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, se
         points = detection_curves(config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0))
     write_rows(out / "curves.csv", CURVE_COLUMNS, [p.__dict__ for p in points])
     title = f"preset {preset}, n = {n}, f = {f}, {trials} trials per point"
-    console.print(f"wrote {out / 'curves.csv'}")
-    console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}")
+    console.print(f"wrote {out / 'curves.csv'}", soft_wrap=True)
+    console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}", soft_wrap=True)
     console.print(
-        f"wrote {viz.detection_vs_offset(points, out / 'detection_vs_offset.png', false_alarm, title)}"
+        f"wrote {viz.detection_vs_offset(points, out / 'detection_vs_offset.png', false_alarm, title)}",
+        soft_wrap=True,
     )
 
 

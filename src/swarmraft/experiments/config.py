@@ -41,7 +41,7 @@ class ConfigError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class GNSSConfig(_Strict):
@@ -141,8 +141,9 @@ class SweepConfig(_Strict):
 
     @model_validator(mode="after")
     def _check(self) -> SweepConfig:
-        if min(self.n) < 1:
-            raise ValueError("n: every swarm size must be >= 1")
+        if min(self.n) < 3:
+            small = ", ".join(str(n) for n in sorted(set(self.n)) if n < 3)
+            raise ValueError(f"n: every swarm size must be >= 3 (one attacker needs 3 drones), got {small}")
         if self.f is not None and min(self.f) < 1:
             raise ValueError("f: every attacker count must be >= 1")
         if self.f is not None and self.diagonal:

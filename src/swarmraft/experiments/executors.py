@@ -86,9 +86,25 @@ class DaskExecutor(AbstractContextManager):
             self._cluster.close()
 
 
-def make_executor(workers: int | None = None, scheduler: str | None = None) -> AbstractContextManager:
+def check_executor(workers: int | None = None, scheduler: str | None = None) -> None:
+    """Raise a one-line ValueError naming ``--workers`` or ``--scheduler`` if they cannot
+    work, before anything starts: a worker count below 1, a scheduler that is neither
+    ``local`` nor an address like ``tcp://HOST:PORT``, or a scheduler without Dask."""
     if workers is not None and workers < 1:
-        raise ValueError("--workers must be >= 1")
+        raise ValueError(f"--workers: {workers} is not a worker count (1 or more)")
+    if scheduler is None:
+        return
+    scheme, sep, rest = scheduler.partition("://")
+    if scheduler != "local" and not (sep and scheme.isalpha() and rest):
+        raise ValueError(f"--scheduler: expected tcp://HOST:PORT or 'local', got {scheduler!r}")
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise ValueError("--scheduler needs Dask: pip install 'swarmraft[cluster]'") from None
+
+
+def make_executor(workers: int | None = None, scheduler: str | None = None) -> AbstractContextManager:
+    check_executor(workers, scheduler)
     workers = workers or default_workers()
     if scheduler:
         return DaskExecutor(scheduler, workers)

@@ -2,19 +2,23 @@
 
 Output folder layout:
 
-- ``run.json``: config, seed, package version, detector parameters and calibration per n;
+- ``run.json``: config, seed, package version, detector parameters and calibration per n, and
+  ``runs``: one entry per run that computed cells (seed, config hash, executor, start, wall time);
 - ``cells/n{n}_f{f}.csv``: one cell's trials, written when the cell completes (resume skips
-  cells whose file exists);
+  cells whose file exists), and ``cells/n{n}_f{f}.json``: the seed and config hash it was made
+  with, so a resume with another seed or config is refused even without run.json;
 - ``trials.csv``: every trial, one row each; ``cells.csv``: one row per (n, f).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import platform
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +28,16 @@ from swarmraft import __version__
 from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
 from swarmraft.experiments.config import ConfigError, SweepConfig
-from swarmraft.experiments.executors import make_executor
+from swarmraft.experiments.executors import check_executor, make_executor
 from swarmraft.experiments.metrics import CELL_COLUMNS, summarize_cell
-from swarmraft.experiments.tables import read_table, write_columns, write_rows
+from swarmraft.experiments.tables import read_table, write_columns, write_json, write_rows
 from swarmraft.experiments.trials import TRIAL_COLUMNS, run_chunk
 
 ProgressFn = Callable[[int], None]
+
+#: the columns of cells.csv and of trials.csv that hold names, not numbers
+CELL_TEXT_COLUMNS = ("preset", "detector", "attack")
+TRIAL_TEXT_COLUMNS = ("status",)
 
 
 @dataclass(frozen=True)
@@ -57,39 +65,126 @@ def chunks(config: SweepConfig) -> list[tuple[int, int]]:
     return out + ([(full, rest)] if rest else [])
 
 
-def _load_run(out: Path, config: SweepConfig) -> dict[str, Any] | None:
-    path = out / "run.json"
-    if not path.exists():
-        return None
+def config_hash(config: SweepConfig) -> str:
+    """sha256 of the config as canonical JSON (seed included): what made a cell."""
+    text = json.dumps(config.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def provenance_path(out: Path, n: int, f: int) -> Path:
+    """``cells/n{n}_f{f}.json``: the seed and config hash a finished cell was made with."""
+    return cell_path(out, n, f).with_suffix(".json")
+
+
+def check_out_folder(out: Path, flag: str = "--out") -> Path:
+    """``out`` if it can be a results folder: not empty, not a file, no file on its way."""
+    if str(out) in ("", "."):
+        raise ConfigError(f"{flag}: give a folder name (an empty path would write into the current folder)")
+    for p in (out, *out.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise ConfigError(f"{flag} {out}: {p} is a file, not a folder")
+            break
+    return out
+
+
+def read_run(folder: Path) -> dict[str, Any]:
+    """A results folder's run.json; missing or corrupt is a one-line ConfigError naming it."""
+    path = Path(folder) / "run.json"
     try:
         run = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{path}: unreadable ({exc}); remove it or use another --out") from None
-    old = run.get("config", {})
-    new = config.model_dump(mode="json")
-    diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
-    if diff:
-        raise ConfigError(
-            f"--out {out} holds a sweep with a different config ({', '.join(diff)} differ); "
-            "use another --out to keep both"
-        )
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: missing (every sweep writes one)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc}); remove it or use another --out") from None
+    if not isinstance(run, dict) or not isinstance(run.get("config"), dict):
+        raise ConfigError(f"{path}: no 'config' object; not a run.json this program wrote")
     return run
 
 
-def _write_run(out: Path, config: SweepConfig, settings: dict, extra: dict) -> None:
+def load_results(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
+    """(cells, trials, run) of a finished results folder, each file validated: a missing,
+    truncated or corrupt one is a one-line error naming it. ``trials`` is empty when the
+    folder has no trials.csv."""
+    folder = Path(folder)
+    if not (folder / "cells.csv").exists():
+        raise ConfigError(f"{folder}: no cells.csv here; run `swarmraft sweep --out {folder}` first")
+    run = read_run(folder)
+    cells = read_table(folder / "cells.csv", CELL_COLUMNS, CELL_TEXT_COLUMNS)
+    if not len(cells["n"]):
+        raise ConfigError(f"{folder / 'cells.csv'}: no cell in it")
+    path = folder / "trials.csv"
+    trials = read_table(path, TRIAL_COLUMNS, TRIAL_TEXT_COLUMNS) if path.exists() else {}
+    return cells, trials, run
+
+
+def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:
+    """What a folder already holds (its run.json, None if none), checked against ``config``
+    before anything is written: run.json (if any) must hold the same config, and every
+    finished cell must have been made with it (its provenance file; a cell without one is
+    taken on run.json's word, and refused without run.json) and be whole."""
+    out = Path(out)
+    if not out.exists():
+        return None
+    previous = read_run(out) if (out / "run.json").exists() else None
+    if previous is not None:
+        old = previous["config"]
+        new = config.model_dump(mode="json")
+        diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if diff:
+            raise ConfigError(
+                f"--out {out} holds a sweep with a different config ({', '.join(diff)} differ); "
+                "use another --out to keep both"
+            )
+    want = config_hash(config)
+    for n, f in config.cells():
+        csv_path = cell_path(out, n, f)
+        if not csv_path.exists():
+            continue
+        meta_path = provenance_path(out, n, f)
+        try:
+            meta = json.loads(meta_path.read_text())
+        except FileNotFoundError:
+            if previous is not None:  # a folder from before cells carried provenance
+                meta = {"seed": config.seed, "config_sha256": want}
+            else:
+                raise ConfigError(
+                    f"{csv_path}: neither {meta_path.name} nor run.json says what made it; "
+                    "remove the cell or use another --out"
+                ) from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ConfigError(
+                f"{meta_path}: not valid JSON ({exc}); remove the cell or use another --out"
+            ) from None
+        if meta.get("config_sha256") != want:
+            raise ConfigError(
+                f"--out {out}: {csv_path.name} was made with seed {meta.get('seed')} and config "
+                f"{str(meta.get('config_sha256'))[:12]}, this run has seed {config.seed} and config "
+                f"{want[:12]}; use another --out to keep both"
+            )
+        t = read_table(csv_path, TRIAL_COLUMNS, TRIAL_TEXT_COLUMNS)
+        if len(t["n"]) != config.trials:
+            raise ConfigError(
+                f"{csv_path}: {len(t['n'])} trials where the config has {config.trials} "
+                "(a truncated file); remove it to recompute the cell"
+            )
+    return previous
+
+
+def _write_run(out: Path, config: SweepConfig, settings: dict, runs: list, extra: dict) -> None:
     run = {
         "config": config.model_dump(mode="json"),
+        "config_sha256": config_hash(config),
         "seed": config.seed,
         "version": __version__,
         "python": platform.python_version(),
         "numpy": np.__version__,
         "detector_params": {str(n): p for n, (p, _) in settings.items()},
         "calibration": {str(n): c for n, (_, c) in settings.items() if c},
+        "runs": runs,
         **extra,
     }
-    tmp = out / "run.json.tmp"
-    tmp.write_text(json.dumps(run, indent=2, sort_keys=True) + "\n")
-    tmp.replace(out / "run.json")
+    write_json(out / "run.json", run)
 
 
 def run_sweep(
@@ -101,11 +196,16 @@ def run_sweep(
     progress: Callable[[int, int], ProgressFn] | None = None,
 ) -> SweepResult:
     """Run (or resume) a sweep into ``out``. ``progress(total_trials, cells)`` may return a
-    callback that is told how many trials just finished."""
+    callback that is told how many trials just finished.
+
+    Bad input (an unusable folder, a folder made with another seed or config, a truncated
+    cell, a bad executor) raises before anything is written. run.json keeps one entry per run
+    that computed cells (seed, config hash, executor, start time, wall time, cells)."""
     start = time.perf_counter()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    previous = _load_run(out, config)
+    started = datetime.now(UTC).isoformat(timespec="seconds")
+    out = check_out_folder(Path(out))
+    previous = check_resume(out, config)
+    check_executor(workers, scheduler)
     cells = config.cells()
     done = [c for c in cells if cell_path(out, *c).exists()]
     todo = [c for c in cells if c not in done]
@@ -116,7 +216,9 @@ def run_sweep(
             settings[int(n_str)] = (p, previous.get("calibration", {}).get(n_str, {}))
     for n in sorted({n for n, _ in cells} - set(settings)):
         settings[n] = detector_settings(config, n)
-    _write_run(out, config, settings, {"complete": False})
+    runs = list(previous.get("runs", [])) if previous else []
+    out.mkdir(parents=True, exist_ok=True)
+    _write_run(out, config, settings, runs, {"complete": False})
 
     plan = chunks(config)
     tasks = [
@@ -127,6 +229,7 @@ def run_sweep(
     tick = progress(len(tasks) and config.trials * len(todo), len(todo)) if progress else None
     pending: dict[tuple[int, int], dict[int, dict]] = {c: {} for c in todo}
     executor_name = "none (all cells reused)"
+    meta = {"seed": config.seed, "config_sha256": config_hash(config)}
     if tasks:
         warm_up()
         with make_executor(workers, scheduler) as ex:
@@ -139,6 +242,7 @@ def run_sweep(
                     got = pending.pop((n, f))
                     parts = [got[i] for i, _ in plan]
                     merged = {k: np.concatenate([p[k] for p in parts]) for k in TRIAL_COLUMNS}
+                    write_json(provenance_path(out, n, f), {**meta, "n": n, "f": f, "trials": config.trials})
                     write_columns(cell_path(out, n, f), merged, TRIAL_COLUMNS)
 
     labels = {"preset": config.preset, "detector": config.detector, "attack": config.attack.name}
@@ -152,12 +256,17 @@ def run_sweep(
     write_columns(out / "trials.csv", merged, TRIAL_COLUMNS)
     write_rows(out / "cells.csv", CELL_COLUMNS, rows)
     seconds = time.perf_counter() - start
-    _write_run(
-        out,
-        config,
-        settings,
-        {"complete": True, "executor": executor_name, "wall_seconds": round(seconds, 3)},
-    )
+    if todo:
+        runs.append(
+            {
+                **meta,
+                "executor": executor_name,
+                "started": started,
+                "wall_seconds": round(seconds, 3),
+                "cells": [list(c) for c in todo],
+            }
+        )
+    _write_run(out, config, settings, runs, {"complete": True})
     return SweepResult(
         out=out,
         cells=read_table(out / "cells.csv"),

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -33,18 +34,52 @@ def write_rows(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, o
     os.replace(tmp, path)
 
 
+def write_json(path: Path, data: object) -> None:
+    """Write JSON atomically (temporary file, then rename), keys sorted."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
 def write_columns(path: Path, data: Mapping[str, np.ndarray], columns: Sequence[str]) -> None:
     length = len(data[columns[0]])
     write_rows(path, columns, ({c: data[c][i] for c in columns} for i in range(length)))
 
 
-def read_table(path: Path) -> dict[str, np.ndarray]:
-    """Columns of a CSV as arrays: numeric where every value parses as a number."""
-    with Path(path).open(newline="") as fh:
-        rows = list(csv.reader(fh))
+class TableError(ValueError):
+    """A table that cannot be read as written: one line naming the file, line and column."""
+
+
+def read_table(path: Path, required: Sequence[str] = (), text: Iterable[str] = ()) -> dict[str, np.ndarray]:
+    """Columns of a CSV as arrays: numeric where every value parses as a number.
+
+    ``required`` columns must be present and every one not in ``text`` numeric; a missing
+    file, a missing column, a row cut short or a value that is not a number is a one-line
+    TableError naming the file (and the line and column)."""
+    path = Path(path)
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+    except FileNotFoundError:
+        raise TableError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise TableError(f"{path}: unreadable ({exc})") from None
     if not rows:
-        raise ValueError(f"{path}: empty table")
+        raise TableError(f"{path}: empty table")
     header, body = rows[0], rows[1:]
+    missing = [c for c in required if c not in header]
+    if missing:
+        more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+        raise TableError(f"{path}: not a table this program wrote (no column {', '.join(missing[:3])}{more})")
+    for k, row in enumerate(body):
+        if len(row) != len(header):
+            raise TableError(
+                f"{path}, line {k + 2}: {len(row)} values where the header has {len(header)} "
+                "(a truncated or corrupt file)"
+            )
+    numeric = set(required) - set(text)
     out: dict[str, np.ndarray] = {}
     for i, name in enumerate(header):
         col = [r[i] for r in body]
@@ -58,5 +93,16 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
                 arr = arr.astype(int)
             out[name] = arr
         except ValueError:
+            if name in numeric:
+                k, v = next((k, v) for k, v in enumerate(col) if not _is_number(v))
+                raise TableError(f"{path}, line {k + 2}, column {name}: {v!r} is not a number") from None
             out[name] = np.array(col, dtype=object)
     return out
+
+
+def _is_number(v: str) -> bool:
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True

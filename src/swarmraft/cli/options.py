@@ -1,0 +1,125 @@
+"""Options the `swarmraft` commands share and the checks on their values: output folders,
+integer lists, KEY=VALUE parameters, workers, schedulers, detector and attack lists, and the
+sweep-config builder. Each bad value is a click.BadParameter naming its option, raised while
+the command line is parsed, so nothing has started or been written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+
+from swarmraft.experiments.config import ATTACKS
+
+PRESET = click.Choice(["reference", "realistic"])
+ATTACK_NAMES = list(ATTACKS)
+
+
+class OutFolder(click.ParamType):
+    """A folder to write into: not empty, not a file, with no file on its way."""
+
+    name = "folder"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
+        from swarmraft.experiments.config import ConfigError
+        from swarmraft.experiments.sweep import check_out_folder
+
+        flag = param.opts[0] if param is not None and param.opts else "--out"
+        try:
+            return check_out_folder(Path(value), flag)
+        except ConfigError as exc:
+            self.fail(str(exc).removeprefix(f"{flag}: ").removeprefix(f"{flag} "), param, ctx)
+
+
+def _check_scheduler(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    from swarmraft.experiments.executors import check_executor
+
+    try:
+        check_executor(None, value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc).removeprefix("--scheduler: "), ctx, param) from None
+    return value
+
+
+WORKERS = click.option(
+    "--workers", type=click.IntRange(min=1), help="local worker processes [default: all cores]"
+)
+SCHEDULER = click.option(
+    "--scheduler",
+    callback=_check_scheduler,
+    help="Dask scheduler tcp://HOST:PORT, or 'local' for a LocalCluster.",
+)
+
+
+def int_list(text: str | None, name: str) -> tuple[int, ...] | None:
+    """'3,5,7' or '3-17' or '3-17:2' -> ints."""
+    if text is None:
+        return None
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            if "-" in part:
+                rng, _, step = part.partition(":")
+                lo, hi = (int(v) for v in rng.split("-"))
+                if step and int(step) < 1:
+                    raise ValueError
+                out += list(range(lo, hi + 1, int(step) if step else 1))
+            elif part:
+                out.append(int(part))
+    except ValueError:
+        raise click.BadParameter(
+            f"expected integers like 3,5,7 or 3-17:2, got {text!r}", param_hint=name
+        ) from None
+    if not out:
+        raise click.BadParameter(f"no values in {text!r}", param_hint=name)
+    return tuple(out)
+
+
+def name_list(text: str, name: str, known: list[str], noun: str) -> list[str]:
+    """'paper,clique' -> names, each one of ``known`` (each a ``noun``); an empty list is an
+    error."""
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    if not names:
+        raise click.BadParameter(f"no names in {text!r}; known: {', '.join(known)}", param_hint=name)
+    for v in names:
+        if v not in known:
+            raise click.BadParameter(f"unknown {noun} {v!r}; known: {', '.join(known)}", param_hint=name)
+    return names
+
+
+def key_values(items: tuple[str, ...]) -> dict[str, Any]:
+    """('tau=0.3', ...) from repeated --param options -> {'tau': 0.3}."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="--param")
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
+    """A validated SweepConfig from a preset, an optional TOML file and command-line flags
+    (flags override the file, the file overrides the preset)."""
+    from swarmraft.experiments import build_config
+    from swarmraft.experiments.config import read_toml
+
+    settings: dict[str, Any] = {}
+    if config_file is not None:
+        settings = read_toml(config_file, "--config")
+        preset = settings.pop("preset", preset)
+    overrides = {
+        "n": int_list(n_text, "--n"),
+        "f": int_list(f_text, "--f"),
+        "diagonal": diagonal or None,
+        "trials": trials,
+        "seed": seed,
+        **extra,
+    }
+    return build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})

@@ -1,0 +1,154 @@
+"""Terminal tables of the `swarmraft` command, laid out to fit 80 columns: short headers, one
+space between columns, names never cut, and a legend printed under each table that spells out
+every abbreviation. Each function returns (table, legend)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from rich import box
+from rich.table import Table
+
+
+def _table(title: str) -> Table:
+    return Table(
+        title=title,
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        collapse_padding=True,
+        pad_edge=False,
+        show_edge=False,
+    )
+
+
+def _names(t: Table, header: str, values: Sequence[object]) -> None:
+    """A column of names, wide enough for the longest so none is cut."""
+    t.add_column(header, no_wrap=True, min_width=max([len(header), *(len(str(v)) for v in values)]))
+
+
+def _pct(v: float) -> str:
+    return "-" if np.isnan(v) else f"{v:.1%}"
+
+
+SUMMARY_LEGEND = (
+    "Errors in m, over the trials of each cell. base: the attacked drones' reports before "
+    "verification; mean, sem, med, p99: the attacked drones after recovery (mean, its standard "
+    "error, median, 99th percentile); >1m: share of attacked drones still over 1 m off; hon: "
+    "honest drones after verification; det: attacked drones flagged; FP: honest drones flagged "
+    "(false positives)."
+)
+
+
+def summary_table(cells: Mapping[str, np.ndarray], title: str) -> tuple[Table, str]:
+    """A sweep's cells: the paper's metric for the attacked drones, and the rates."""
+    t = _table(title)
+    for col in ("n", "f", "trials", "base", "mean", "sem", "med", "p99", ">1m", "hon", "det", "FP"):
+        t.add_column(col, justify="right", no_wrap=True)
+    for i in range(len(cells["n"])):
+        t.add_row(
+            str(cells["n"][i]),
+            str(cells["f"][i]),
+            str(cells["trials"][i]),
+            f"{cells['baseline_mean'][i]:.2f}",
+            f"{cells['recovered_mean'][i]:.3g}",
+            f"{cells['recovered_sem'][i]:.2g}",
+            f"{cells['recovered_median'][i]:.2g}",
+            f"{cells['recovered_p99'][i]:.3g}",
+            _pct(cells["frac_over_1m"][i]),
+            f"{cells['honest_mean'][i]:.3g}",
+            _pct(cells["detection_rate"][i]),
+            _pct(cells["false_positive_rate"][i]),
+        )
+    return t, SUMMARY_LEGEND
+
+
+COMPARE_LEGEND = (
+    "Errors in m. att: attacked drones after verification; hon: honest drones after "
+    "verification; GNSS: honest drones' raw GNSS reports; eff: efficiency of the attacked "
+    "drones, sqrt(MSE / Cramér-Rao bound), 1 is the bound, - where no Gaussian bound exists; "
+    "det: attacked drones flagged; FP: honest drones flagged; id: trials whose flag set is "
+    "exactly the attackers; unid: trials the detector called unidentifiable."
+)
+
+
+def compare_table(table: Mapping[str, np.ndarray], title: str) -> tuple[Table, str]:
+    """Detectors on identical trials: one row per attack, detector and (n, f)."""
+    t = _table(title)
+    _names(t, "attack", table["attack"])
+    _names(t, "detector", table["detector"])
+    for col in ("n", "f", "att", "hon", "GNSS", "eff", "det", "FP", "id", "unid"):
+        t.add_column(col, justify="right", no_wrap=True)
+    for i in range(len(table["n"])):
+        eff = float(table["attacked_efficiency"][i])
+        t.add_row(
+            str(table["attack"][i]),
+            str(table["detector"][i]),
+            str(table["n"][i]),
+            str(table["f"][i]),
+            f"{table['recovered_mean'][i]:.3g}",
+            f"{table['honest_mean'][i]:.3g}",
+            f"{table['honest_baseline_mean'][i]:.3g}",
+            "-" if np.isnan(eff) else f"{eff:.2f}",
+            _pct(table["detection_rate"][i]),
+            _pct(table["false_positive_rate"][i]),
+            _pct(table["identification_rate"][i]),
+            _pct(table["status_unidentifiable"][i]),
+        )
+    return t, COMPARE_LEGEND
+
+
+def check_legend(max_z: float, max_gap_m: float) -> str:
+    return (
+        "Means in m. recovered, sem: this sweep's mean error of the attacked drones after "
+        "recovery and its standard error; published: the paper's mean; z = (recovered - "
+        f"published) / sem; baseline: mean error of the attacked drones' reports, beside the "
+        f"published one; ok: |z| <= {max_z:g} and baseline within {max_gap_m:g} m."
+    )
+
+
+def check_table(rows: Sequence[Mapping[str, object]], title: str, legend: str) -> tuple[Table, str]:
+    """A reference sweep against the published means, one row per cell n = 2f+1."""
+    t = _table(title)
+    for col in ("n (f)", "trials", "recovered", "sem", "published", "z", "baseline", "published", "ok"):
+        t.add_column(col, justify="right", no_wrap=True)
+    for r in rows:
+        t.add_row(
+            f"{r['n']} ({r['f']})",
+            str(r["trials"]),
+            f"{r['recovered']:.3f}",
+            f"{r['sem']:.3f}",
+            f"{r['published']:.3f}",
+            f"{r['z']:+.2f}",
+            f"{r['baseline']:.2f}",
+            f"{r['published_baseline']:.1f}",
+            "yes" if r["ok"] else "[red]NO[/]",
+        )
+    return t, legend
+
+
+CALIBRATION_LEGEND = (
+    "Thresholds in m, from honest snapshots (paper III.E). tau = pair mu + 3 pair sigma: the "
+    "vote's threshold, from the mean and standard deviation over honest pairs of |distance "
+    "between their reports - their range|; epsilon = rec mu + 3 rec sigma: the re-marking "
+    "threshold, from the distance between an honest drone's report and its multilateration "
+    "from the others."
+)
+
+
+def calibration_table(rows: Sequence[tuple[int, object]], title: str) -> tuple[Table, str]:
+    """Calibrated thresholds per swarm size n: (n, Calibration) rows."""
+    t = _table(title)
+    for col in ("n", "tau", "pair mu", "pair sigma", "epsilon", "rec mu", "rec sigma"):
+        t.add_column(col, justify="right", no_wrap=True)
+    for n, c in rows:
+        t.add_row(
+            str(n),
+            f"{c.tau:.3f}",
+            f"{c.pair_mean:.3f}",
+            f"{c.pair_std:.3f}",
+            f"{c.epsilon:.3f}",
+            f"{c.recovery_mean:.3f}",
+            f"{c.recovery_std:.3f}",
+        )
+    return t, CALIBRATION_LEGEND

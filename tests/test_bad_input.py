@@ -1,0 +1,153 @@
+"""Bad input on the command line: one line starting with `error:` that names the option, field
+or file, exit status 2, and nothing written anywhere (the working folder included)."""
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+
+
+def tree(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` with its bytes (folders by a marker), to compare before and after."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        out[str(p.relative_to(root))] = p.read_bytes() if p.is_file() else b"<dir>"
+    return out
+
+
+def fails_cleanly(args: list[str], needle: str, root: Path) -> str:
+    """Run ``swarmraft ARGS`` in ``root`` (the working folder); assert the one-line error that
+    contains ``needle``, exit status 2 and that nothing under ``root`` changed."""
+    before = tree(root)
+    r = CliRunner().invoke(main, args)
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert r.exit_code == 2, r.output
+    assert len(lines) == 1, r.output
+    assert lines[0].startswith("error: "), r.output
+    assert needle in lines[0], r.output
+    assert tree(root) == before
+    return lines[0]
+
+
+@pytest.fixture
+def cwd(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+SCENARIO = """
+name = "tiny"
+drones = 5
+duration_s = 2
+"""
+
+
+def scenario(root: Path, extra: str) -> str:
+    path = root / "s.toml"
+    path.write_text(SCENARIO + extra)
+    return str(path)
+
+
+def test_out_below_a_file(cwd):
+    (cwd / "file").write_text("x")
+    line = fails_cleanly(["sweep", "--n", "5", "--trials", "5", "--out", "file/sub"], "--out", cwd)
+    assert "file is a file, not a folder" in line
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["sweep", "--n", "5", "--trials", "5"],
+        ["compare", "--n", "5", "--trials", "5"],
+        ["curves", "--n", "9", "--f", "2"],
+        ["demo"],
+        ["mission", "--scenario", "demo"],
+    ],
+)
+def test_empty_out_is_refused(cwd, command):
+    line = fails_cleanly([*command, "--out", ""], "--out", cwd)
+    assert "give a folder name" in line
+
+
+def test_scenario_name_cannot_leave_the_results_folder(cwd):
+    path = scenario(cwd, "").replace("", "")
+    Path(path).write_text(SCENARIO.replace('"tiny"', '"../../escape"'))
+    line = fails_cleanly(["mission", "--scenario", path], "name", cwd)
+    assert "s.toml: name: String should match pattern" in line
+
+
+def test_n_below_3_is_refused_not_dropped(cwd):
+    fails_cleanly(["sweep", "--n", "1-3", "--out", "o"], "n: every swarm size must be >= 3", cwd)
+    assert "got 1, 2" in fails_cleanly(["sweep", "--n", "1-3", "--out", "o"], "n:", cwd)
+
+
+def test_calibrate_needs_3_drones(cwd):
+    fails_cleanly(["calibrate", "--n", "2", "--trials", "10"], "n: every swarm size must be >= 3", cwd)
+
+
+def test_compare_without_detectors(cwd):
+    line = fails_cleanly(["compare", "--detectors", "", "--n", "5", "--out", "o"], "--detectors", cwd)
+    assert "no names in ''" in line
+    fails_cleanly(["compare", "--detectors", "paper,nope", "--out", "o"], "unknown detector 'nope'", cwd)
+    fails_cleanly(["compare", "--attacks", " , ", "--out", "o"], "--attacks", cwd)
+
+
+def test_workers_0_fails_before_anything_starts(cwd):
+    line = fails_cleanly(["sweep", "--n", "5", "--workers", "0", "--out", "o"], "--workers", cwd)
+    assert "0 is not in the range x>=1" in line
+
+
+def test_demo_trials_0_fails_before_the_mission(cwd):
+    fails_cleanly(["demo", "--trials", "0", "--out", "o"], "--trials", cwd)
+
+
+def test_scheduler_is_named(cwd):
+    line = fails_cleanly(["sweep", "--n", "5", "--scheduler", "bogus", "--out", "o"], "--scheduler", cwd)
+    assert "expected tcp://HOST:PORT or 'local', got 'bogus'" in line
+
+
+def test_raft_fuzz_needs_3_nodes(cwd):
+    fails_cleanly(["raft-fuzz", "--nodes", "1", "--seeds", "1"], "--nodes", cwd)
+
+
+@pytest.mark.parametrize(
+    "extra,needle",
+    [
+        ("[gnss]\nsigma_h = inf\n", "gnss.sigma_h: Input should be a finite number"),
+        ("[ranging]\nsigma = nan\n", "ranging.sigma: Input should be a finite number"),
+        (
+            '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 5\n',
+            "spoof[0].start_s: 5 s is not before the mission's end (2 s)",
+        ),
+        (
+            '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 1\nend_s = 0.5\n',
+            "spoof[0].end_s: 0.5 s is not after start_s = 1 s",
+        ),
+        (
+            "[[outage]]\ndrones = [3]\nstart_s = 1.5\nend_s = 1\n",
+            "outage[0].end_s: 1 s is not after start_s = 1.5 s",
+        ),
+        (
+            "[[outage]]\ndrones = [3]\nstart_s = 3\n",
+            "outage[0].start_s: 3 s is not before the mission's end (2 s)",
+        ),
+        ('[[fault]]\nkind = "crash-leader"\nat_s = 9\n', "fault[0].at_s: 9 s is not before"),
+    ],
+)
+def test_scenario_field_is_named(cwd, extra, needle):
+    path = scenario(cwd, extra)
+    fails_cleanly(["mission", "--scenario", path, "--out", "o"], f"s.toml: {needle}", cwd)
+
+
+def test_unknown_scenario_name_lists_the_shipped_ones(cwd):
+    line = fails_cleanly(["mission", "--scenario", "nope", "--out", "o"], "--scenario: no file nope", cwd)
+    assert "shipped: demo, drag-off" in line
+
+
+def test_sweep_config_with_inf(cwd):
+    (cwd / "c.toml").write_text('preset = "realistic"\nn = [5]\n[gnss]\nsigma_h = inf\n')
+    fails_cleanly(
+        ["sweep", "--config", "c.toml", "--out", "o"], "gnss.sigma_h: Input should be a finite", cwd
+    )

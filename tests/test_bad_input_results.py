@@ -1,0 +1,141 @@
+"""Results folders are validated when read: a truncated or corrupt file is named in one line
+(exit status 2, nothing written); run.json keeps every run's provenance, and a resume with
+another seed or config is refused even when run.json is gone (the cells carry theirs)."""
+
+import json
+import shutil
+
+import pytest
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+from test_bad_input import fails_cleanly
+
+SWEEP = ["sweep", "--n", "3,5", "--diagonal", "--trials", "50", "--workers", "1"]
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    out = tmp_path_factory.mktemp("base") / "ref"
+    r = CliRunner().invoke(main, [*SWEEP, "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+@pytest.fixture
+def ref(finished, tmp_path, monkeypatch):
+    """A copy of a finished reference sweep in ./ref, the test's working folder."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(finished, tmp_path / "ref")
+    return tmp_path / "ref"
+
+
+def resume(*extra: str) -> list[str]:
+    return [*SWEEP, *extra, "--out", "ref"]
+
+
+def test_cell_cut_mid_line_then_resume(ref):
+    cell = ref / "cells" / "n5_f2.csv"
+    cell.write_bytes(cell.read_bytes()[:-40])
+    line = fails_cleanly(resume(), "ref/cells/n5_f2.csv, line 51:", ref.parent)
+    assert "a truncated or corrupt file" in line
+
+
+def test_cell_missing_rows_then_resume(ref):
+    cell = ref / "cells" / "n5_f2.csv"
+    cell.write_text("".join(cell.read_text().splitlines(keepends=True)[:31]))
+    line = fails_cleanly(resume(), "ref/cells/n5_f2.csv: 30 trials where the config has 50", ref.parent)
+    assert "remove it to recompute" in line
+
+
+@pytest.mark.parametrize("command", [["check"], ["figure", "scaling"], ["figure", "all"]])
+def test_cells_csv_cut_mid_line(ref, command):
+    table = ref / "cells.csv"
+    table.write_bytes(table.read_bytes()[:-25])
+    fails_cleanly([*command, "ref"], "ref/cells.csv, line 3: ", ref.parent)
+
+
+@pytest.mark.parametrize("command", [["check"], ["figure", "scaling"]])
+def test_cells_csv_with_a_word_for_a_number(ref, command):
+    table = ref / "cells.csv"
+    header, first, *rest = table.read_text().splitlines(keepends=True)
+    values = first.split(",")
+    values[header.split(",").index("recovered_mean")] = "abc"
+    table.write_text("".join([header, ",".join(values), *rest]))
+    fails_cleanly(
+        [*command, "ref"], "ref/cells.csv, line 2, column recovered_mean: 'abc' is not a number", ref.parent
+    )
+
+
+def test_garbage_cells_csv(ref):
+    (ref / "cells.csv").write_text("hello\nworld\n")
+    line = fails_cleanly(["check", "ref"], "ref/cells.csv: not a table this program wrote", ref.parent)
+    assert "(no column n, f, trials and 27 more)" in line
+
+
+@pytest.mark.parametrize("command", [["check", "ref"], ["figure", "recovery", "ref"], resume()])
+def test_corrupt_run_json_is_named(ref, command):
+    (ref / "run.json").write_text('{"config": {"preset": ')
+    fails_cleanly(command, "ref/run.json: not valid JSON (", ref.parent)
+
+
+def test_missing_run_json_is_named(ref):
+    (ref / "run.json").unlink()
+    fails_cleanly(["check", "ref"], "ref/run.json: missing", ref.parent)
+
+
+def test_missing_trials_csv_is_named_by_the_distribution_figure(ref):
+    (ref / "trials.csv").unlink()
+    fails_cleanly(["figure", "distribution", "ref"], "ref/trials.csv: missing", ref.parent)
+
+
+def test_resume_with_another_seed_without_run_json_is_refused(ref):
+    (ref / "run.json").unlink()
+    line = fails_cleanly(resume("--seed", "5"), "--out ref: n3_f1.csv was made with seed 2025", ref.parent)
+    assert "this run has seed 5" in line
+
+
+def test_resume_with_another_seed_is_refused(ref):
+    fails_cleanly(
+        resume("--seed", "5"), "--out ref holds a sweep with a different config (seed differ)", ref.parent
+    )
+
+
+def test_cell_without_provenance_or_run_json_is_refused(ref):
+    (ref / "run.json").unlink()
+    (ref / "cells" / "n3_f1.json").unlink()
+    fails_cleanly(
+        resume(), "ref/cells/n3_f1.csv: neither n3_f1.json nor run.json says what made it", ref.parent
+    )
+
+
+def test_resume_without_run_json_reuses_cells_of_the_same_seed(ref):
+    cells = (ref / "cells.csv").read_bytes()
+    (ref / "run.json").unlink()
+    r = CliRunner().invoke(main, resume())
+    assert r.exit_code == 0, r.output
+    assert "reused 2 finished cells" in r.output
+    assert (ref / "cells.csv").read_bytes() == cells
+
+
+def test_run_json_keeps_every_run(ref):
+    first = json.loads((ref / "run.json").read_text())
+    assert len(first["runs"]) == 1
+    run = first["runs"][0]
+    assert run["seed"] == 2025 and run["executor"] == "inline" and run["cells"] == [[3, 1], [5, 2]]
+    assert run["config_sha256"] == first["config_sha256"] and run["started"].endswith("+00:00")
+    (ref / "cells" / "n5_f2.csv").unlink()
+    r = CliRunner().invoke(main, resume())
+    assert r.exit_code == 0, r.output
+    second = json.loads((ref / "run.json").read_text())
+    assert second["runs"][0] == run
+    assert second["runs"][1]["cells"] == [[5, 2]]
+    # a resume that computes nothing adds no entry
+    assert CliRunner().invoke(main, resume()).exit_code == 0
+    assert json.loads((ref / "run.json").read_text())["runs"] == second["runs"]
+
+
+def test_cell_provenance_names_its_seed_and_config(ref):
+    meta = json.loads((ref / "cells" / "n5_f2.json").read_text())
+    run = json.loads((ref / "run.json").read_text())
+    assert meta == {"config_sha256": run["config_sha256"], "f": 2, "n": 5, "seed": 2025, "trials": 50}

@@ -129,11 +129,14 @@ def print_mission_summary(summary: dict) -> None:
             )
             continue
         console.print(
-            f"{head} flagged in {_pct(d['flagged_fraction'])} of {d['judged_steps']} steps, first "
-            f"{_s(d['time_to_first_detection_s'])} (its GNSS then "
+            f"{head} flagged in {_pct(d['flagged_fraction'])} of {d['judged_steps']} steps; "
+            f"first {_s(d['time_to_first_detection_s'])} (its GNSS then "
             f"{d['reported_error_at_first_detection_m']} m off), sustained "
-            f"{_s(d['time_to_sustained_detection_s'])}; error mean {_m(d['mean_error_m'])}, "
-            f"worst {_m(d['worst_error_m'])}, snapshot bound {_m(d['mean_snapshot_bound_m'])}"
+            f"{_s(d['time_to_sustained_detection_s'])}"
+        )
+        console.print(
+            f"    error from the spoof's start: mean {_m(d['mean_error_m'])}, worst "
+            f"{_m(d['worst_error_m'])}; snapshot bound {_m(d['mean_snapshot_bound_m'])}"
         )
     for a in s["after_faults"]:
         console.print(
@@ -142,12 +145,15 @@ def print_mission_summary(summary: dict) -> None:
             f"{a['skipped_steps']} skipped, {a['wrong_partition_steps']} wrong-partition steps"
         )
     for o in s["outages"]:
+        end = "end" if o["to_s"] is None else f"{o['to_s']:g}"
         console.print(
-            f"  GNSS outage of drone {o['drone']} ({o['from_s']:g}-{o['to_s']} s): SwarmRaft "
-            f"{_m(o['mean_error_swarmraft_m'])}; INS aligned to the truth at the outage's start "
-            f"{_m(o['mean_error_ins_aligned_m'])}; INS never reset {_m(o['mean_error_ins_alone_m'])} "
-            f"({_m(o['ins_alone_error_at_start_m'])} off at the start); snapshot bound "
-            f"{_m(o['mean_snapshot_bound_m'])}"
+            f"  GNSS outage of drone {o['drone']} ({o['from_s']:g}-{end} s): mean error SwarmRaft "
+            f"{_m(o['mean_error_swarmraft_m'])}, snapshot bound {_m(o['mean_snapshot_bound_m'])}"
+        )
+        console.print(
+            f"    INS aligned to the truth at the outage's start {_m(o['mean_error_ins_aligned_m'])}; "
+            f"INS never reset {_m(o['mean_error_ins_alone_m'])} "
+            f"({_m(o['ins_alone_error_at_start_m'])} off at the start)"
         )
     console.print(f"  consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms")
     console.print(
@@ -156,10 +162,12 @@ def print_mission_summary(summary: dict) -> None:
     )
     for e in s["events"]:
         console.print(f"  event: {e}")
-    console.print(
-        f"  (sustained: flagged in every step of the {s['sustained_detection_s']:g} s that start "
-        f"there, within the spoof; {s['bound_note']})"
-    )
+    if s["detections"]:
+        console.print(
+            f"  sustained: flagged in every step of the {s['sustained_detection_s']:g} s that start "
+            "there, within the spoof"
+        )
+    console.print(f"  {s['bound_note']}")
 
 
 @main.command()

@@ -1,5 +1,6 @@
 """The swarmraft command: outputs, figures, and one-line errors for bad input."""
 
+import json
 import subprocess
 import sys
 
@@ -177,3 +178,114 @@ def test_cli_attack_names_match_the_config():
     from swarmraft.experiments.config import ATTACKS
 
     assert ATTACK_NAMES == list(ATTACKS)
+
+
+def _render(table_and_legend) -> list[str]:
+    from rich.console import Console
+
+    from swarmraft.cli.app import print_table
+
+    con = Console(width=80, record=True, file=open("/dev/null", "w"), color_system=None)  # noqa: SIM115
+    print_table(table_and_legend, con)
+    return con.export_text().splitlines()
+
+
+def _headers(lines: list[str]) -> list[str]:
+    rule = next(i for i, ln in enumerate(lines) if set(ln.strip()) == {"─"})
+    return lines[rule - 1].split("  ")
+
+
+def test_tables_fit_80_columns_with_names_whole_and_abbreviations_explained():
+    import numpy as np
+
+    from swarmraft.cli.tables import check_legend, check_table, compare_table, summary_table
+    from swarmraft.experiments.published import compare_published
+    from swarmraft.experiments.sweep import load_results
+
+    attacks = ["range-tamper", "collusion-1", "collusion-2", "collusion-3"]
+    rows = [(a, d) for a in attacks for d in ("paper", "clique", "fde", "joint")]
+    k = len(rows)
+    number = np.full(k, 12.3456)
+    table = {
+        "attack": np.array([a for a, _ in rows], dtype=object),
+        "detector": np.array([d for _, d in rows], dtype=object),
+        "n": np.full(k, 17),
+        "f": np.full(k, 8),
+        **{c: number for c in ("recovered_mean", "honest_mean", "honest_baseline_mean")},
+        "attacked_efficiency": np.full(k, np.nan),
+        **{c: np.full(k, 0.999) for c in ("detection_rate", "false_positive_rate")},
+        **{c: np.full(k, 0.5) for c in ("identification_rate", "status_unidentifiable")},
+    }
+    lines = _render(compare_table(table, "detectors on identical trials"))
+    assert max(map(len, lines)) <= 80 and not any("…" in ln for ln in lines)
+    body = "\n".join(lines)
+    for a, d in rows:
+        assert any(ln.split()[:2] == [a, d] for ln in lines), (a, d)
+    legend = body.split("Errors in m.")[1]
+    for abbreviation in ("att", "hon", "GNSS", "eff", "det", "FP", "id", "unid"):
+        assert f"{abbreviation}:" in legend
+    cells = {
+        "n": np.array([17, 15]),
+        "f": np.array([8, 7]),
+        "trials": np.array([10000, 10000]),
+        **{
+            c: np.array([28.8123, 1.23e-08])
+            for c in ("baseline_mean", "recovered_mean", "recovered_sem", "recovered_median")
+        },
+        **{c: np.array([104.5, 0.5]) for c in ("recovered_p99", "honest_mean")},
+        **{c: np.array([1.0, 0.1234]) for c in ("frac_over_1m", "detection_rate", "false_positive_rate")},
+    }
+    lines = _render(summary_table(cells, "reference: mean error of attacked drones"))
+    assert max(map(len, lines)) <= 80 and not any("…" in ln for ln in lines)
+    text = "\n".join(lines)
+    for abbreviation in ("base", "sem", "med", "p99", ">1m", "hon", "det", "FP"):
+        assert abbreviation in _headers(lines)[0] or abbreviation in lines[1]
+        assert f"{abbreviation}:" in text or f"{abbreviation}," in text
+    rows = compare_published({**cells, "n": np.array([17, 3]), "f": np.array([8, 1])})
+    lines = _render(check_table(rows, "results/reference against the published means", check_legend(3, 0.3)))
+    assert max(map(len, lines)) <= 80 and "z = (recovered - published) / sem" in " ".join(
+        " ".join(lines).split()
+    )
+    assert load_results  # the folder reader the tables are fed from
+
+
+def test_check_json_for_scripts(results):
+    out, _ = results
+    r = CliRunner().invoke(main, ["check", str(out), "--json"])
+    report = json.loads(r.stdout)
+    assert [c["n"] for c in report["cells"]] == [3, 5, 7, 9]
+    assert report["criteria"] == {"max_abs_z": 3.0, "max_baseline_gap_m": 0.3}
+    assert report["pass"] == all(c["ok"] for c in report["cells"])
+    assert r.exit_code == (0 if report["pass"] else 1)
+
+
+def test_compare_json_for_scripts(tmp_path):
+    out = tmp_path / "cmp"
+    args = [
+        "compare",
+        "--preset",
+        "reference",
+        "--detectors",
+        "paper",
+        "--n",
+        "7",
+        "--f",
+        "2",
+        "--trials",
+        "20",
+    ]
+    r = CliRunner().invoke(main, [*args, "--json", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.stdout)
+    assert [(row["attack"], row["detector"], row["n"], row["f"]) for row in rows] == [("jump", "paper", 7, 2)]
+    assert rows[0]["attacked_efficiency"] is None  # nan (exact data: no bound) is null, valid JSON
+    assert f"wrote {out / 'compare.csv'}" in r.stderr
+
+
+def test_printed_paths_are_never_wrapped(tmp_path):
+    out = tmp_path / ("a-folder-name-long-enough-to-pass-the-console-width-" * 3) / "ref"
+    args = ["sweep", "--n", "5", "--f", "1", "--trials", "10", "--workers", "1", "--out", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert f"  wrote {out / 'cells.csv'}\n" in r.output
+    assert f"-> {out}\n" in r.output

@@ -1,6 +1,6 @@
 """Terminal tables of the `swarmraft` command, laid out to fit 80 columns: short headers, one
-space between columns, names never cut, and a legend printed under each table that spells out
-every abbreviation. Each function returns (table, legend)."""
+space between columns, names never cut, and a legend printed under each table that spells
+out every abbreviation. Each function returns (table, legend)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def _table(title: str) -> Table:
         title=title,
         title_justify="left",
         box=box.SIMPLE_HEAD,
-        collapse_padding=True,
+        padding=0,  # the box's space between columns is the only gap
         pad_edge=False,
         show_edge=False,
     )

@@ -158,6 +158,7 @@ def test_error_over_time_labels_faults_and_marks_wrong_partition_steps(drawn):
     assert list(mine.get_xdata()) == pytest.approx([0.7, 2.2])
     assert not [ln for ln in fig.axes[0].lines if ln.get_label() == "this drone on the wrong side"]
     assert [p for p in fig.axes[1].patches if p.get_label() == "crashed (not reporting)"]
+    assert fig.axes[1].get_title() == "drone 2 (crashed at 1.5 s)" and fig.axes[0].get_title() == "drone 1"
     assert "wrong partition in 2 steps" in fig._suptitle.get_text()
 
 

@@ -114,7 +114,12 @@ def error_over_time(
                 transform=ax.get_xaxis_transform(),
                 label="wrong-partition step",
             )
-        ax.set_title(f"drone {i + 1}", fontsize=9)
+        down = np.flatnonzero(~alive[:, i])
+        ax.set_title(
+            f"drone {i + 1}" + (f" (crashed at {t[down[0]]:.1f} s)" if down.size else ""),
+            fontsize=9,
+            color="black" if not down.size else "dimgray",
+        )
         ax.grid(True, which="major", ls=":", alpha=0.5)
     drawn = np.concatenate([np.ravel(v) for v in errors.values()])
     drawn = drawn[np.isfinite(drawn)]

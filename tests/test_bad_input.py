@@ -151,3 +151,28 @@ def test_sweep_config_with_inf(cwd):
     fails_cleanly(
         ["sweep", "--config", "c.toml", "--out", "o"], "gnss.sigma_h: Input should be a finite", cwd
     )
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    out = tmp_path_factory.mktemp("swept") / "ref"
+    r = CliRunner().invoke(
+        main, ["sweep", "--n", "5", "--diagonal", "--trials", "20", "--workers", "1", "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    return out
+
+
+@pytest.mark.parametrize(
+    "target,needle",
+    [
+        ("", "--out: give an image file name ending in .png, .pdf or .svg"),
+        ("picture", "--out: picture: give an image file name ending in .png, .pdf or .svg"),
+        ("folder.png", "--out: folder.png is a folder"),
+        ("file.txt/x.png", "--out: file.txt is a file, not a folder"),
+    ],
+)
+def test_figure_out_must_be_an_image_file(cwd, swept, target, needle):
+    (cwd / "folder.png").mkdir()
+    (cwd / "file.txt").write_text("x")
+    fails_cleanly(["figure", "scaling", str(swept), "--out", target], needle, cwd)

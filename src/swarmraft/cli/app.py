@@ -31,6 +31,19 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _param_name(exc: click.BadParameter) -> str | None:
+    """The option or argument a BadParameter is about, as the user typed it (--out, RESULTS)."""
+    if exc.param_hint is not None:
+        hint = exc.param_hint if isinstance(exc.param_hint, str) else " / ".join(exc.param_hint)
+    elif isinstance(exc.param, click.Argument):
+        hint = (exc.param.name or "").upper()
+    elif exc.param is not None:
+        hint = " / ".join(exc.param.opts)
+    else:
+        return None
+    return hint.replace("'", "").replace('"', "") or None
+
+
 class _Group(click.Group):
     """Turns expected errors, and click's usage errors, into one line on stderr."""
 
@@ -39,7 +52,11 @@ class _Group(click.Group):
             return super().main(*args, standalone_mode=False, **kwargs)
         except click.UsageError as exc:
             hint = f" (see `{exc.ctx.command_path} --help`)" if exc.ctx else ""
-            _fail(" ".join(f"{exc.format_message()}{hint}".split()))
+            text = exc.format_message()
+            bad_value = isinstance(exc, click.BadParameter) and not isinstance(exc, click.MissingParameter)
+            if bad_value and (name := _param_name(exc)):
+                text = f"{name}: {exc.message}"  # '--out: ...', as the config errors read
+            _fail(" ".join(f"{text}{hint}".split()))
         except click.exceptions.Abort as exc:
             if isinstance(exc.__cause__, KeyboardInterrupt):
                 err_console.print("interrupted", soft_wrap=True)

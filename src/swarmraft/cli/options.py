@@ -33,6 +33,32 @@ class OutFolder(click.ParamType):
             self.fail(str(exc).removeprefix(f"{flag}: ").removeprefix(f"{flag} "), param, ctx)
 
 
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+class ImageFile(click.ParamType):
+    """A figure file to write: a name ending in .png, .pdf or .svg, not a folder, with no
+    file on its way."""
+
+    name = "file"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
+        path = Path(value)
+        want = f"give an image file name ending in {', '.join(IMAGE_SUFFIXES[:-1])} or {IMAGE_SUFFIXES[-1]}"
+        if not str(value):
+            self.fail(want, param, ctx)
+        if path.suffix.lower() not in IMAGE_SUFFIXES:
+            self.fail(f"{value}: {want}", param, ctx)
+        if path.is_dir():
+            self.fail(f"{value} is a folder", param, ctx)
+        for p in path.parents:
+            if p.exists():
+                if not p.is_dir():
+                    self.fail(f"{p} is a file, not a folder", param, ctx)
+                break
+        return path
+
+
 def _check_scheduler(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     from swarmraft.experiments.executors import check_executor
 

@@ -15,6 +15,7 @@ from swarmraft.cli.options import (
     PRESET,
     SCHEDULER,
     WORKERS,
+    ImageFile,
     OutFolder,
     int_list,
     key_values,
@@ -150,7 +151,9 @@ def _calibration_line(out: Path) -> str | None:
 @main.command()
 @click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "all"]))
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), help="image file (default RESULTS/figures/KIND.png)")
+@click.option(
+    "--out", type=ImageFile(), help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png)"
+)
 @click.option(
     "--view",
     type=click.Choice(["projections", "3d"]),

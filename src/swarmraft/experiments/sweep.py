@@ -83,7 +83,7 @@ def check_out_folder(out: Path, flag: str = "--out") -> Path:
     for p in (out, *out.parents):
         if p.exists():
             if not p.is_dir():
-                raise ConfigError(f"{flag} {out}: {p} is a file, not a folder")
+                raise ConfigError(f"{flag}: {p} is a file, not a folder")
             break
     return out
 

@@ -171,3 +171,14 @@ def test_mission_json_is_the_summary_and_nothing_else(tmp_path):
     printed = json.loads(res.stdout)
     assert printed == json.loads((tmp_path / "o" / "summary.json").read_text())
     assert "wrote" in res.stderr and "wrote" not in res.stdout
+
+
+def test_the_printed_summary_warns_of_a_spoofed_majority(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text(
+        'name = "majority"\ndrones = 5\nduration_s = 2\nseed = 3\n'
+        '[[spoof]]\nkind = "area"\ndrones = [2, 3, 4]\nstart_s = 1\nmagnitude = 40\n'
+    )
+    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    assert "warning: up to 3 of 5 drones spoofed at once" in " ".join(res.stdout.split())

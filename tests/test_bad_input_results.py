@@ -139,3 +139,12 @@ def test_cell_provenance_names_its_seed_and_config(ref):
     meta = json.loads((ref / "cells" / "n5_f2.json").read_text())
     run = json.loads((ref / "run.json").read_text())
     assert meta == {"config_sha256": run["config_sha256"], "f": 2, "n": 5, "seed": 2025, "trials": 50}
+
+
+def test_run_json_with_a_bad_config_is_named(ref):
+    run = json.loads((ref / "run.json").read_text())
+    run["config"]["trials"] = -4
+    (ref / "run.json").write_text(json.dumps(run))
+    fails_cleanly(
+        ["figure", "recovery", "ref"], "ref/run.json: config.trials: Input should be greater than", ref.parent
+    )

@@ -23,8 +23,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from swarmraft import __version__
+from swarmraft.estimation.registry import one_line
 from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
 from swarmraft.experiments.config import ConfigError, SweepConfig
@@ -99,6 +101,10 @@ def read_run(folder: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid JSON ({exc}); remove it or use another --out") from None
     if not isinstance(run, dict) or not isinstance(run.get("config"), dict):
         raise ConfigError(f"{path}: no 'config' object; not a run.json this program wrote")
+    try:
+        SweepConfig(**run["config"])
+    except ValidationError as exc:
+        raise ConfigError(f"{path}: {one_line(exc, 'config')}") from None
     return run
 
 

@@ -176,3 +176,10 @@ def test_figure_out_must_be_an_image_file(cwd, swept, target, needle):
     (cwd / "folder.png").mkdir()
     (cwd / "file.txt").write_text("x")
     fails_cleanly(["figure", "scaling", str(swept), "--out", target], needle, cwd)
+
+
+@pytest.mark.parametrize("command", [["mission", "--scenario"], ["sweep", "--config"]])
+def test_a_file_that_is_not_text_is_named(cwd, command):
+    (cwd / "bin.toml").write_bytes(b"\xff\xfe")
+    line = fails_cleanly([*command, "bin.toml", "--out", "o"], f"{command[1]} bin.toml: not a text file", cwd)
+    assert "utf-8" in line

@@ -179,6 +179,10 @@ def read_toml(path: Path, flag: str) -> dict[str, Any]:
         return tomllib.loads(Path(path).read_text())
     except FileNotFoundError:
         raise ConfigError(f"{flag}: no file {path}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{flag} {path}: not a text file ({exc.encoding}: {exc.reason})") from None
+    except OSError as exc:
+        raise ConfigError(f"{flag} {path}: unreadable ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{flag} {path}: not valid TOML ({exc})") from None
 

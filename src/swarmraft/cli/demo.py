@@ -9,7 +9,7 @@ import click
 from swarmraft.cli.app import console, main, print_table, progress_bar
 from swarmraft.cli.missions import mission_figures, print_mission_summary
 from swarmraft.cli.options import WORKERS, OutFolder
-from swarmraft.cli.sweeps import _calibration_line, draw_figures, report_compare
+from swarmraft.cli.sweeps import calibration_line, draw_figures, report_compare
 from swarmraft.cli.tables import summary_table
 
 
@@ -74,7 +74,7 @@ def demo(out, trials, workers, scenario_file) -> None:
                 f"`swarmraft check {folder}` prints the table",
                 soft_wrap=True,
             )
-        if line := _calibration_line(folder):
+        if line := calibration_line(folder):
             console.print(line)
         written += result.paths + draw_figures("all", folder)
         console.print(f"{preset} done in {result.seconds:.1f} s on {result.executor}")

@@ -125,14 +125,14 @@ def sweep(
     if result.reused:
         console.print(f"reused {len(result.reused)} finished cells from {out}", soft_wrap=True)
     print_table(summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
-    if line := _calibration_line(out):
+    if line := calibration_line(out):
         console.print(line)
     console.print(f"done in {result.seconds:.1f} s on {result.executor}")
     for p in result.paths:
         console.print(f"  wrote {p}", soft_wrap=True)
 
 
-def _calibration_line(out: Path) -> str | None:
+def calibration_line(out: Path) -> str | None:
     """The calibrated thresholds of a results folder, in one line (None if none ran)."""
     from swarmraft.experiments.sweep import read_run
 

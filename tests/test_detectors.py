@@ -48,7 +48,10 @@ def test_joint_is_efficient_for_attacked_drones():
     C = swarm_crb(d.truth, ~d.attackers, ~np.isnan(d.ranges), gnss_covariance(1.5, 3.0), 0.1)
     sq = np.sum((v.positions - d.truth) ** 2, axis=2)
     tr = np.trace(C, axis1=2, axis2=3)
-    eff = np.sqrt(sq[d.attackers].mean() / tr[d.attackers].mean())
+    fixed = np.isfinite(sq) & d.attackers
+    assert (np.isfinite(sq) | (v.status[:, None] != "ok")).all()  # nan only with a status that says so
+    assert fixed.sum() >= 0.98 * d.attackers.sum()
+    eff = np.sqrt(sq[fixed].mean() / tr[fixed].mean())
     assert eff <= 1.3  # the sweep at 2,000 trials reports it against the 1.2 target
 
 
@@ -91,16 +94,17 @@ def test_area_spoof_and_range_bias_are_caught():
         assert v.faulty[d.attackers].mean() >= 0.95, attack
 
 
-def test_insufficient_geometry_keeps_the_report():
+@pytest.mark.parametrize("det", NEW)
+def test_two_anchors_leave_the_position_undetermined_not_guessed(det):
     rng = np.random.default_rng(0)
-    truth = rng.uniform(0, 100, (5, 3))
+    truth = rng.uniform(0, 100, (7, 3))
     rep = truth.copy()
     rep[0] += [30.0, 0, 0]
     ranges = np.linalg.norm(truth[:, None] - truth[None], axis=2)
-    ranges[0, 1:3] = ranges[1:3, 0] = np.nan  # drone 0 ranges with only 2 others
-    v = verify(_snap(rep, ranges), "fde")
-    assert v.status == "insufficient" and v.faulty[0]
-    np.testing.assert_array_equal(v.positions[0], rep[0])
+    ranges[0, 3:] = ranges[3:, 0] = np.nan  # drone 0 ranges with only 2 others
+    v = verify(_snap(rep, ranges), det)
+    assert v.status == "degenerate" and v.drone_status[0] == "degenerate"
+    assert np.isnan(v.positions[0]).all() and np.isinf(v.hpl[0]) and np.isinf(v.vpl[0])
 
 
 def _snap(rep, ranges):
@@ -128,9 +132,11 @@ def test_prior_resolves_the_three_anchor_mirror(det):
     ranges = np.linalg.norm(truth[:, None] - truth[None], axis=2)
     ranges[0, 4:] = ranges[4:, 0] = np.nan  # the spoofed drone ranges with only 3 others
     plain = verify(Snapshot(reported=rep, ranges=ranges, range_sigma=0.0), det)
-    assert plain.status == "insufficient" and plain.faulty[0]
+    assert plain.status == "degenerate" and plain.faulty[0] and np.isnan(plain.positions[0]).all()
     prior = np.full((7, 3), np.nan)
     prior[0] = truth[0] + [1.0, -1.0, 0.5]  # e.g. the previous verified position
     v = verify(Snapshot(reported=rep, ranges=ranges, range_sigma=0.0, prior=prior, prior_sigma=2.0), det)
-    assert v.status == "ok" and v.faulty[0]
+    assert v.faulty[0]
     assert np.linalg.norm(v.positions[0] - truth[0]) < 0.05
+    # placed, but a fault of one of its 3 anchors could not be seen: no protection level
+    assert v.status == "degenerate" and np.isinf(v.hpl[0])

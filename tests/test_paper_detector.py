@@ -59,7 +59,7 @@ def test_fallback_when_fewer_than_three_anchors_remain():
     assert v_skip.diagnostics["anchors"][:2].tolist() == [0, 0]
     np.testing.assert_array_equal(v_skip.positions, rep)  # reports kept, still flagged
     assert v_skip.faulty[:2].all()
-    assert v_skip.status == "insufficient"
+    assert v_skip.status == "degenerate"
 
 
 def test_remarking_within_epsilon():

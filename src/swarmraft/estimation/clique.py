@@ -19,9 +19,11 @@ only when n >= 2f + 4. The candidates are the maximal cliques that leave at most
 drones out (the number of attackers the swarm is meant to tolerate; by default an honest
 majority, (n - 1) // 2). If two or more candidates pass the residual tests the status is
 ``unidentifiable``: only the drones outside every plausible candidate are flagged, and the
-positions are estimated from the drones inside all of them (if at least four; otherwise the
-reports are kept). If none passes, the largest candidate with the smallest residual is taken;
-if there is no candidate, the status is ``unidentifiable``. With ``f_max`` = f, n >= 2f + 4
+positions are estimated from the drones inside all of them. If none passes, the largest
+candidate with the smallest residual is taken (its tests fail, so the status is ``alarm``);
+if there is no candidate, the status is ``alarm`` too (more than ``f_max`` drones are
+inconsistent). The chosen set goes through `integrity.finish` (robust estimate from several
+starts including the candidate's own, statuses, protection levels). With ``f_max`` = f, n >= 2f + 4
 identifies f colluders exactly; with the default a reflection about three pivots (which
 needs one more honest drone to rule out) is reported unidentifiable rather than guessed.
 """
@@ -32,23 +34,17 @@ import networkx as nx
 import numpy as np
 from pydantic import Field
 
-from swarmraft.estimation.joint import (
-    joint_estimate,
-    residual_statistics,
-    tests_pass,
-    trusted_estimate,
-)
-from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max
+from swarmraft.estimation.joint import joint_estimate, residual_statistics, tests_pass
+from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.paper import report_distances
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 
-class CliqueParams(NoiseParams):
+class CliqueParams(IntegrityParams):
     k: float = Field(4.0, gt=0, description="consistency threshold, sigmas")
     tol: float = Field(0.01, ge=0, description="absolute floor on the threshold, m")
-    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual test")
-    f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
 
 
 def consistency_graph(
@@ -89,7 +85,7 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     T, n, _ = reported.shape
     noise = NoiseModel.of(batch, p, "clique")
     adj = consistency_graph(reported, ranges, noise, p.k, p.tol)
-    f_max = (n - 1) // 2 if p.f_max is None else p.f_max
+    f_max = resolve_f_max(p, n, "clique")
     cands = [candidate_sets(adj[t], f_max) for t in range(T)]
     # Test every candidate at once: does a joint estimate trusting it explain the data?
     owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
@@ -97,50 +93,33 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     for k, c in enumerate(c for cs in cands for c in cs):
         masks[k, list(c)] = True
     passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
+    x = np.zeros((owner.size, n, 3))
     if owner.size:
         x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
         _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
         passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
-    trusted = np.zeros((T, n), dtype=bool)
+    trusted = np.ones((T, n), dtype=bool)
     suspects = np.zeros((T, n), dtype=bool)
+    start = np.full((T, n, 3), np.nan)
     status = np.full(T, "ok", dtype=object)
     k = 0
     for t, cs in enumerate(cands):
         ks = np.arange(k, k + len(cs))
         k += len(cs)
         plausible = [j for j in ks if passed[j]]
-        if not cs:  # more than f_max drones outside every clique
-            status[t] = "unidentifiable"
+        if not cs:  # more than f_max drones outside every clique: nothing to exclude
+            status[t] = "alarm"
             continue
         if len(plausible) >= 2:
             status[t] = "unidentifiable"
-            common = np.logical_and.reduce(masks[plausible])
-            suspects[t] = ~np.logical_or.reduce(masks[plausible])
-            if common.sum() >= 4:  # estimate from what every explanation trusts
-                trusted[t] = common
+            trusted[t] = np.logical_and.reduce(masks[plausible])  # what every explanation trusts
+            suspects[t] = ~np.logical_or.reduce(masks[plausible])  # what none trusts
             continue
         top = [j for j in ks if masks[j].sum() == len(cs[0])]
         pick = plausible[0] if plausible else min(top, key=lambda j: total[j])
         trusted[t] = masks[pick]
-        suspects[t] = ~trusted[t]
-    positions = reported.copy()
-    use = trusted.any(axis=1)
-    if use.any():
-        prior = None if batch.prior is None else np.asarray(batch.prior, float)[use]
-        positions[use], fit_status = trusted_estimate(
-            reported[use],
-            ranges[use],
-            trusted[use],
-            noise.gnss_cov,
-            noise.range_sigma,
-            prior=prior,
-            prior_sigma=batch.prior_sigma,
-        )
-        status[use] = np.where(status[use] == "ok", fit_status, status[use])
-    faulty = suspects
-    return VerdictBatch(
-        positions=positions,
-        faulty=faulty,
-        status=status.astype(str),
-        diagnostics={"degree": adj.sum(axis=2), "trusted": trusted},
+        suspects[t] = ~masks[pick]
+        start[t] = x[pick]
+    return finish(
+        batch, p, noise, trusted, (start,), status, suspects, diagnostics={"degree": adj.sum(axis=2)}
     )

@@ -1,34 +1,43 @@
 """The `fde` detector: fault detection and exclusion as in GNSS receiver integrity monitoring
-(RAIM). Estimate all positions jointly from every trusted report and range; if the weighted
+(RAIM). Drones most of whose two-way ranges disagree (`two_way_outliers`: range tampering)
+are excluded first. Then estimate all positions jointly from every trusted report and range; if the weighted
 sum of squared residuals fails a chi-square test at false-alarm probability ``p_fa``, or the
 largest GNSS residual block fails its own 3-dof test at ``p_fa / n``, exclude the drone with
 the largest residual contribution (its GNSS report and its own ranges), together with any
 drone whose contribution is gross (above the local test and half the largest), and
-repeat, until the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain."""
+repeat, until the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain. The
+final trusted set goes through `integrity.finish` (robust estimate, statuses, protection
+levels): if its tests still fail, exclusion is exhausted and the status is ``alarm``."""
 
 from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
 
-from swarmraft.estimation.joint import (
-    chi2_quantile,
-    joint_estimate,
-    residual_statistics,
-    tests_pass,
-    trusted_estimate,
-)
-from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max
+from swarmraft.estimation.joint import chi2_quantile, joint_estimate, residual_statistics, tests_pass
+from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 GROSS = 1.0  # contributions above this share of the worst are excluded together with it
 
 
-class FDEParams(NoiseParams):
-    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the test")
+class FDEParams(IntegrityParams):
     min_trusted: int = Field(4, ge=1, description="stop excluding below this many drones")
-    f_max: int | None = Field(None, ge=0, description="exclude at most this many; None: (n - 1) // 2")
+    k_pair: float = Field(4.0, gt=0, description="two-way range check: d_ij and d_ji agree within, sigmas")
+
+
+def two_way_outliers(ranges: np.ndarray, range_sigma: float, k: float) -> np.ndarray:
+    """Drones (T, n) most of whose two-way links disagree: |d_ij - d_ji| > k sqrt(2) sigma on
+    more than half the links measured both ways. A drone that tampers with the ranges it
+    measures disagrees with every honest drone's measurement of the same distance; an honest
+    drone disagrees only with the tamperers."""
+    back = np.swapaxes(ranges, 1, 2)
+    both = ~np.isnan(ranges) & ~np.isnan(back)
+    with np.errstate(invalid="ignore"):
+        bad = both & (np.abs(ranges - back) > k * np.sqrt(2) * range_sigma)
+    return bad.sum(axis=2) > 0.5 * both.sum(axis=2)
 
 
 @register("fde", FDEParams, "chi-square residual test with greedy exclusion (RAIM-style FDE)")
@@ -37,7 +46,12 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
     ranges = np.asarray(batch.ranges, float)
     T, n, _ = reported.shape
     noise = NoiseModel.of(batch, p, "fde")
-    trusted = np.ones((T, n), dtype=bool)
+    f_max = resolve_f_max(p, n, "fde")
+    # Tampered ranges first (they would spread their residuals over the honest drones that
+    # measured them), at most f_max, the most inconsistent first.
+    tampered = two_way_outliers(ranges, noise.range_sigma, p.k_pair)
+    too_many = tampered.sum(axis=1) > f_max
+    trusted = ~np.where(too_many[:, None], False, tampered)
     active = np.arange(T)
     stat = np.zeros(T)
     x_all = None
@@ -59,7 +73,6 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
         per, gnss_q, total, dof = residual_statistics(x, reported[active], ranges[active], tr, noise)
         stat[active] = total
         failed = ~tests_pass(gnss_q, total, dof, tr, p.p_fa)
-        f_max = (n - 1) // 2 if p.f_max is None else p.f_max
         can = (tr.sum(axis=1) > p.min_trusted) & ((~tr).sum(axis=1) < f_max)
         go = failed & can
         score = np.where(tr, per, -np.inf)
@@ -74,16 +87,4 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
         gross &= go[:, None]
         trusted[active] &= ~gross
         active = active[go]
-    positions, status = trusted_estimate(
-        reported,
-        ranges,
-        trusted,
-        noise.gnss_cov,
-        noise.range_sigma,
-        x0=x_all,
-        prior=batch.prior,
-        prior_sigma=batch.prior_sigma,
-    )
-    return VerdictBatch(
-        positions=positions, faulty=~trusted, status=status, diagnostics={"chi2": stat, "trusted": trusted}
-    )
+    return finish(batch, p, noise, trusted, starts=(x_all,), diagnostics={"chi2": stat})

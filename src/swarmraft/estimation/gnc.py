@@ -6,9 +6,11 @@ ranges lose their weight without an explicit search over subsets. Drones whose G
 stays beyond the chi-square 3-dof 0.999 quantile (or most of whose own ranges are outliers)
 are flagged, flagged drones whose reports agree with the others' ranges are re-included, and
 all positions are re-estimated with the rest trusted, which also brings the honest drones
-below their raw GNSS error. Where that answer fails the residual tests or flags more than
-``f_max`` drones (GNC settled on a wrong partition, about 1 % of trials with 8 of 17 drones
-spoofed), the clique detector's answer is used if it passes them."""
+below their raw GNSS error. The final set goes through `integrity.finish` (robust estimate
+from several starts including the GNC estimate, statuses, protection levels); flagging more
+than ``f_max`` drones is an ``alarm``. Where the answer is an alarm (GNC settled on a wrong
+partition, about 1 % of trials with 8 of 17 drones spoofed), the clique detector's answer is
+used if its status is better."""
 
 from __future__ import annotations
 
@@ -17,15 +19,9 @@ from pydantic import Field
 
 from swarmraft.estimation.bounds import CHI2_3DOF_999
 from swarmraft.estimation.clique import CliqueParams, clique_detector
-from swarmraft.estimation.joint import (
-    joint_estimate,
-    residual_statistics,
-    residuals,
-    tests_pass,
-    trusted_estimate,
-    weighted_gauss_newton,
-)
-from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max, status_rank
+from swarmraft.estimation.joint import joint_estimate, residuals, weighted_gauss_newton
+from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
@@ -76,14 +72,12 @@ def gnc_estimate(
     return x, gnss_w, range_w
 
 
-class JointParams(NoiseParams):
+class JointParams(IntegrityParams):
     c_gnss: float = Field(4.0, gt=0, description="GNC inlier bound, whitened GNSS residual")
     c_range: float = Field(4.0, gt=0, description="GNC inlier bound, whitened range residual")
     mu_factor: float = Field(2.0, gt=1, description="GNC: divide mu by this each round (1.4 in Yang et al.)")
     inner: int = Field(1, ge=1, description="GNC: Gauss-Newton iterations per round")
     flag_chi2: float = Field(CHI2_3DOF_999, gt=0, description="flag GNSS residual^2 above")
-    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual test")
-    f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
 
 
 @register("joint", JointParams, "robust joint estimate (GNC, Geman-McClure) of all positions")
@@ -92,6 +86,7 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
     ranges = np.asarray(batch.ranges, float)
     n = reported.shape[1]
     noise = NoiseModel.of(batch, p, "joint")
+    f_max = resolve_f_max(p, n, "joint")
     x, gnss_w, range_w = gnc_estimate(
         reported,
         ranges,
@@ -118,50 +113,16 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         if not back.any():
             break
         faulty &= ~back
-    positions, status = trusted_estimate(
-        reported,
-        ranges,
-        ~faulty,
-        noise.gnss_cov,
-        noise.range_sigma,
-        prior=batch.prior,
-        prior_sigma=batch.prior_sigma,
-    )
-    # GNC can settle on a wrong partition. Where its answer fails the residual tests or flags
-    # more than f_max drones, the clique detector's answer for that trial is taken if it
-    # passes the tests, or if it flags no more than f_max drones and fits better per degree
-    # of freedom (an honest report far out in its own noise can make both fail the tests).
-    f_max = (n - 1) // 2 if p.f_max is None else p.f_max
-    _, gq, total, dof = residual_statistics(positions, reported, ranges, ~faulty, noise)
-    bad = ~tests_pass(gq, total, dof, ~faulty, p.p_fa) | (faulty.sum(axis=1) > f_max)
+    too_many = np.where(faulty.sum(axis=1) > f_max, "alarm", "ok")
+    v = finish(batch, p, noise, ~faulty, (x,), too_many, diagnostics={"gnss_weight": gnss_w})
+    # GNC can settle on a wrong partition: where its answer is an alarm, the clique
+    # detector's answer is taken if its status is better.
+    bad = v.status == "alarm"
     if bad.any():
-        sub = SnapshotBatch(
-            reported[bad],
-            ranges[bad],
-            batch.gnss_sigma,
-            batch.range_sigma,
-            None if batch.prior is None else batch.prior[bad],
-            batch.prior_sigma,
-        )
-        alt = clique_detector(
-            sub, CliqueParams(**p.model_dump(include=set(NoiseParams.model_fields)), p_fa=p.p_fa, f_max=f_max)
-        )
-        _, agq, atotal, adof = residual_statistics(
-            alt.positions, reported[bad], ranges[bad], ~alt.faulty, noise
-        )
-        alt_pass = tests_pass(agq, atotal, adof, ~alt.faulty, p.p_fa)
-        own_fit = total[bad] / np.maximum(dof[bad], 1)
-        alt_fit = atotal / np.maximum(adof, 1)
-        own_admissible = faulty[bad].sum(axis=1) <= f_max
-        alt_admissible = alt.faulty.sum(axis=1) <= f_max
-        better = alt_admissible & (~own_admissible | (alt_fit < own_fit))
-        alt_ok = (alt.status == "ok") & (alt_pass | better)
-        idx = np.flatnonzero(bad)[alt_ok]
-        positions[idx], faulty[idx], status[idx] = (
-            alt.positions[alt_ok],
-            alt.faulty[alt_ok],
-            alt.status[alt_ok],
-        )
-    return VerdictBatch(
-        positions=positions, faulty=faulty, status=status, diagnostics={"gnss_weight": gnss_w}
-    )
+        shared = p.model_dump(exclude=set(JointParams.model_fields) - set(IntegrityParams.model_fields))
+        alt = clique_detector(batch.subset(bad), CliqueParams(**{**shared, "f_max": f_max}))
+        better = status_rank(alt.status) < status_rank(v.status[bad])
+        idx = np.flatnonzero(bad)[better]
+        for name in ("positions", "faulty", "status", "drone_status", "hpl", "vpl"):
+            getattr(v, name)[idx] = getattr(alt, name)[better]
+    return v

@@ -36,66 +36,145 @@ def residuals(
 
 
 @njit(cache=True)
-def _gauss_newton_kernel(
-    x, reported, ranges, gnss_w, range_w, G, inv_s2, iters, damping, tol, prior, prior_w
+def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - compiled
+    """Weighted sum of squared whitened residuals of one problem at positions xt (n, 3)."""
+    n = xt.shape[0]
+    c = 0.0
+    for i in range(n):
+        w = gw[i]
+        if w > 0:
+            e0 = xt[i, 0] - rep[i, 0]
+            e1 = xt[i, 1] - rep[i, 1]
+            e2 = xt[i, 2] - rep[i, 2]
+            e = (e0, e1, e2)
+            for a in range(3):
+                for b in range(3):
+                    c += w * e[a] * G[a, b] * e[b]
+        if prior_w > 0 and np.isfinite(pr[i, 0]):
+            for a in range(3):
+                c += prior_w * (xt[i, a] - pr[i, a]) ** 2
+    for i in range(n):
+        for j in range(n):
+            d = rng_[i, j]
+            w = rw[i, j]
+            if i == j or w <= 0 or np.isnan(d):
+                continue
+            d0 = xt[i, 0] - xt[j, 0]
+            d1 = xt[i, 1] - xt[j, 1]
+            d2 = xt[i, 2] - xt[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - d
+            c += w * inv_s2 * r * r
+    return c
+
+
+@njit(cache=True)
+def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # pragma: no cover
+    """Gauss-Newton normal equations H, g (in place) of one problem at xt."""
+    n = xt.shape[0]
+    H[:, :] = 0.0
+    g[:] = 0.0
+    for i in range(n):
+        w = gw[i]
+        if w > 0:
+            for a in range(3):
+                for b in range(3):
+                    H[3 * i + a, 3 * i + b] += w * G[a, b]
+                    g[3 * i + a] += w * G[a, b] * (xt[i, b] - rep[i, b])
+        if prior_w > 0 and np.isfinite(pr[i, 0]):
+            for a in range(3):
+                H[3 * i + a, 3 * i + a] += prior_w
+                g[3 * i + a] += prior_w * (xt[i, a] - pr[i, a])
+    for i in range(n):
+        for j in range(n):
+            d = rng_[i, j]
+            w = rw[i, j]
+            if i == j or w <= 0 or np.isnan(d):
+                continue
+            d0 = xt[i, 0] - xt[j, 0]
+            d1 = xt[i, 1] - xt[j, 1]
+            d2 = xt[i, 2] - xt[j, 2]
+            dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if dist == 0:
+                continue
+            u = (d0 / dist, d1 / dist, d2 / dist)
+            wr = w * inv_s2
+            r = dist - d
+            for a in range(3):
+                g[3 * i + a] += wr * r * u[a]
+                g[3 * j + a] -= wr * r * u[a]
+                for b in range(3):
+                    v = wr * u[a] * u[b]
+                    H[3 * i + a, 3 * i + b] += v
+                    H[3 * j + a, 3 * j + b] += v
+                    H[3 * i + a, 3 * j + b] -= v
+                    H[3 * j + a, 3 * i + b] -= v
+
+
+@njit(cache=True)
+def _levenberg_marquardt_kernel(
+    x, reported, ranges, gnss_w, range_w, G, inv_s2, iters, tol, prior, prior_w, cost_out, conv_out
 ):  # pragma: no cover - compiled
-    """Problem by problem: assemble the normal equations (3n x 3n) and take damped
-    Gauss-Newton steps, in place on x (T, n, 3)."""
+    """Problem by problem, in place on x (T, n, 3): Levenberg-Marquardt with step acceptance.
+    A step is taken only if it lowers the cost; otherwise the damping grows tenfold and the
+    step is tried again. Converged: an accepted step below ``tol`` m, a cost decrease below
+    1e-3 (the cost is a chi-square: statistically nothing; a crawl along a curved valley of
+    near-collinear anchors stops there), or no step that lowers it."""
     T, n, _ = x.shape
     N = 3 * n
+    H = np.zeros((N, N))
+    g = np.zeros(N)
+    A = np.zeros((N, N))
+    xn = np.zeros((n, 3))
     for t in range(T):
+        xt = x[t]
+        cost = _cost(xt, reported[t], ranges[t], gnss_w[t], range_w[t], G, inv_s2, prior[t], prior_w)
+        lam = 1e-6
+        conv = False
         for _ in range(iters):
-            H = np.zeros((N, N))
-            g = np.zeros(N)
-            for i in range(n):
-                w = gnss_w[t, i]
-                if w > 0:
-                    e = x[t, i] - reported[t, i]
-                    for a in range(3):
-                        for b in range(3):
-                            H[3 * i + a, 3 * i + b] += w * G[a, b]
-                            g[3 * i + a] += w * G[a, b] * e[b]
-                if prior_w > 0 and np.isfinite(prior[t, i, 0]):
-                    for a in range(3):
-                        H[3 * i + a, 3 * i + a] += prior_w
-                        g[3 * i + a] += prior_w * (x[t, i, a] - prior[t, i, a])
-            for i in range(n):
-                for j in range(n):
-                    d = ranges[t, i, j]
-                    w = range_w[t, i, j]
-                    if i == j or w <= 0 or np.isnan(d):
-                        continue
-                    d0 = x[t, i, 0] - x[t, j, 0]
-                    d1 = x[t, i, 1] - x[t, j, 1]
-                    d2 = x[t, i, 2] - x[t, j, 2]
-                    dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                    if dist == 0:
-                        continue
-                    u = (d0 / dist, d1 / dist, d2 / dist)
-                    wr = w * inv_s2
-                    r = dist - d
-                    for a in range(3):
-                        g[3 * i + a] += wr * r * u[a]
-                        g[3 * j + a] -= wr * r * u[a]
-                        for b in range(3):
-                            v = wr * u[a] * u[b]
-                            H[3 * i + a, 3 * i + b] += v
-                            H[3 * j + a, 3 * j + b] += v
-                            H[3 * i + a, 3 * j + b] -= v
-                            H[3 * j + a, 3 * i + b] -= v
+            _normal_equations(
+                xt, reported[t], ranges[t], gnss_w[t], range_w[t], G, inv_s2, prior[t], prior_w, H, g
+            )
             scale = 1.0
             for k in range(N):
                 scale = max(scale, abs(H[k, k]))
-            for k in range(N):
-                H[k, k] += damping * scale
-            step = np.linalg.solve(H, -g)
+            accepted = False
             big = 0.0
+            new_cost = cost
+            for _attempt in range(16):
+                for a in range(N):
+                    for b in range(N):
+                        A[a, b] = H[a, b]
+                    A[a, a] += lam * H[a, a] + 1e-12 * scale
+                step = np.linalg.solve(A, -g)
+                big = 0.0
+                for i in range(n):
+                    for a in range(3):
+                        xn[i, a] = xt[i, a] + step[3 * i + a]
+                        big = max(big, abs(step[3 * i + a]))
+                new_cost = _cost(
+                    xn, reported[t], ranges[t], gnss_w[t], range_w[t], G, inv_s2, prior[t], prior_w
+                )
+                if new_cost <= cost:
+                    accepted = True
+                    break
+                lam *= 10.0
+                if big < tol:
+                    break
+            if not accepted:
+                # no step lowers the cost even with damping 1e10 times larger: a minimum
+                conv = True
+                break
+            decrease = cost - new_cost
             for i in range(n):
                 for a in range(3):
-                    x[t, i, a] += step[3 * i + a]
-                    big = max(big, abs(step[3 * i + a]))
-            if big < tol:
+                    xt[i, a] = xn[i, a]
+            cost = new_cost
+            lam = max(lam * 0.3, 1e-12)
+            if big < tol or decrease <= 1e-3 + 1e-12 * cost:
+                conv = True
                 break
+        cost_out[t] = cost
+        conv_out[t] = conv
 
 
 def weighted_gauss_newton(
@@ -106,23 +185,27 @@ def weighted_gauss_newton(
     range_w: np.ndarray,
     gnss_cov: np.ndarray,
     range_sigma: float,
-    iters: int = 8,
-    damping: float = 1e-9,
+    iters: int = 50,
     tol: float = 1e-7,
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
-) -> np.ndarray:
+    full: bool = False,
+):
     """Minimise sum_i gnss_w_i |G^1/2 (x_i - z_i)|^2 + sum_ij range_w_ij ((|x_i - x_j| - d_ij)/s)^2
     (+ sum_i |x_i - p_i|^2 / prior_sigma^2 over drones with a prior p_i, nan = none) over
-    x (T, n, 3), starting at x0: damped Gauss-Newton with the analytic Jacobian, each problem
-    until its step falls below ``tol`` m or ``iters`` steps (a numba kernel: the normal
-    equations of 17 drones are 51 x 51, small enough that numpy's per-call overhead dominated)."""
+    x (T, n, 3), starting at x0: Levenberg-Marquardt with the analytic Jacobian and step
+    acceptance (a step is taken only if it lowers the cost), each problem until it converges
+    or ``iters`` steps (a numba kernel: the normal equations of 17 drones are 51 x 51, small
+    enough that numpy's per-call overhead dominated). With ``full``, also returns the final
+    cost (T,) and whether each problem converged (T,)."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
     G = np.linalg.inv(np.asarray(gnss_cov, float))
     has_prior = prior is not None and prior_sigma is not None and prior_sigma > 0
     prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.full((T, n, 3), np.nan)
-    _gauss_newton_kernel(
+    cost = np.zeros(T)
+    conv = np.zeros(T, dtype=np.bool_)
+    _levenberg_marquardt_kernel(
         x,
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
@@ -131,12 +214,13 @@ def weighted_gauss_newton(
         G,
         1.0 / range_sigma**2,
         int(iters),
-        float(damping),
         float(tol),
         prior_arr,
         1.0 / prior_sigma**2 if has_prior else 0.0,
+        cost,
+        conv,
     )
-    return x
+    return (x, cost, conv) if full else x
 
 
 def initial_positions(
@@ -219,7 +303,7 @@ def trusted_estimate(
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Joint estimate with a decided trusted set, and the status per trial: ``insufficient``
+    """Joint estimate with a decided trusted set, and the status per trial: ``degenerate``
     when an untrusted drone has fewer than 4 trusted drones to range with (3 spheres leave a
     mirror ambiguity, fewer a continuum), or fewer than 3 if it has a prior (previous verified
     position or INS) that resolves the mirror; its report is then kept rather than guessed."""
@@ -239,7 +323,7 @@ def trusted_estimate(
         need = np.where(np.isnan(prior).any(axis=2), 4, 3)
     thin = ~trusted & (anchor_counts(ranges, trusted) < need)
     positions = np.where(thin[..., None], reported, positions)
-    return positions, np.where(thin.any(axis=1), "insufficient", "ok")
+    return positions, np.where(thin.any(axis=1), "degenerate", "ok")
 
 
 def residual_statistics(

@@ -21,12 +21,16 @@ class NoiseParams(BaseModel):
     gnss_sigma: tuple[float, float] | None = Field(None, description="(horizontal, vertical) m")
     range_sigma: float | None = Field(None, ge=0, description="ranging sigma, m")
     min_sigma: float = Field(1e-3, gt=0, description="floor for exact data, m")
+    gnss_common: tuple[float, float] | None = Field(
+        None, description="(horizontal, vertical) GNSS error common to all drones, m; None: the snapshot's"
+    )
 
 
 @dataclass(frozen=True)
 class NoiseModel:
-    gnss_cov: np.ndarray  # (3, 3)
+    gnss_cov: np.ndarray  # (3, 3), each drone's own GNSS error
     range_sigma: float
+    common_var: np.ndarray | None = None  # (3,) per-axis variance of an error common to all drones
 
     @classmethod
     def of(cls, batch: SnapshotBatch, p: NoiseParams, detector: str) -> NoiseModel:
@@ -39,7 +43,9 @@ class NoiseModel:
             )
         h, v = gs if gs is not None else (0.0, 0.0)  # no GNSS sigma: exact honest reports
         floor = p.min_sigma
-        return cls(gnss_covariance(max(h, floor), max(v, floor)), max(float(rs), floor))
+        gc = p.gnss_common if p.gnss_common is not None else batch.gnss_common
+        common = None if gc is None else np.array([gc[0] ** 2, gc[0] ** 2, gc[1] ** 2], float)
+        return cls(gnss_covariance(max(h, floor), max(v, floor)), max(float(rs), floor), common)
 
     @property
     def whitener(self) -> np.ndarray:

@@ -15,8 +15,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarmraft.estimation.joint import trusted_estimate
-from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.integrity import IntegrityParams, finish
+from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration, solve_ranges
@@ -140,22 +140,9 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
     votes = pairwise_votes(reported, ranges, p.tau)
     flagged0 = votes < 0 if p.tie == "honest" else votes <= 0
     if p.recovery == "joint":
-        noise = NoiseModel.of(batch, NoiseParams(), "paper")
-        positions, status = trusted_estimate(
-            reported,
-            ranges,
-            ~flagged0,
-            noise.gnss_cov,
-            noise.range_sigma,
-            prior=batch.prior,
-            prior_sigma=batch.prior_sigma,
-        )
-        return VerdictBatch(
-            positions=positions,
-            faulty=flagged0,
-            status=status,
-            diagnostics={"votes": votes, "flagged_by_vote": flagged0},
-        )
+        q = IntegrityParams()
+        noise = NoiseModel.of(batch, q, "paper")
+        return finish(batch, q, noise, ~flagged0, diagnostics={"votes": votes, "flagged_by_vote": flagged0})
     dists = anchor_distances(ranges)
     measured = ~np.isnan(dists) & ~np.eye(n, dtype=bool)
 
@@ -192,8 +179,13 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
             ti, ai = np.array([t]), np.array([a])
             settle(ti, ai, *_stage2(reported, dists, measured, flags, ti, ai, p))
 
-    thin = (flags & (anchors < 3)).any(axis=1)
-    status = np.where(thin, "insufficient", "ok")
+    thin = flags & (anchors < 3)
+    # The vote's own consistency test, applied to the answer: a recovered drone whose anchors
+    # would still vote against it (a wrong local minimum of the solver) is an alarm.
+    after = pairwise_votes(positions, np.where(flags[:, None, :], np.nan, ranges), p.tau)
+    revote = after < 0 if p.tie == "honest" else after <= 0
+    alarm = (flags & ~thin & revote).any(axis=1)
+    status = np.where(alarm, "alarm", np.where(thin.any(axis=1), "degenerate", "ok"))
     return VerdictBatch(
         positions=positions,
         faulty=flags,
@@ -204,4 +196,5 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
             "anchors": anchors,
             "deviation": deviation,
         },
+        drone_status=np.where(thin, "degenerate", status[:, None]),
     )

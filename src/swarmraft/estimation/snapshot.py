@@ -10,7 +10,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-STATUSES = ("ok", "unidentifiable", "insufficient")
+# One vocabulary for every detector (README, docs/detectors.md):
+#   ok             the final fit passes its own consistency test and the geometry fixes every
+#                  position it returns
+#   alarm          the data are inconsistent and exclusion is exhausted: do not use
+#   unidentifiable two or more trusted sets explain the data equally well
+#   degenerate     the geometry does not fix some position (that drone: prior or nan)
+STATUSES = ("ok", "alarm", "unidentifiable", "degenerate")
 SOURCES = ("gnss", "ins", "none")
 
 
@@ -22,6 +28,25 @@ def _as_float_array(name: str, value: object, shape_hint: str) -> np.ndarray:
     return arr
 
 
+def _finite_nonnegative(v: object) -> bool:
+    try:
+        f = float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isfinite(f) and f >= 0)
+
+
+def sigma_pair(name: str, value: object) -> tuple[float, float]:
+    """A (horizontal, vertical) pair of sigmas, m; anything else is a one-line ValueError."""
+    try:
+        pair = tuple(float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected (horizontal, vertical) in m, got {value!r}") from None
+    if len(pair) != 2 or not all(np.isfinite(v) and v >= 0 for v in pair):
+        raise ValueError(f"{name}: expected (horizontal, vertical), both finite and >= 0, got {value!r}")
+    return pair  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class Snapshot:
     """One step's reports.
@@ -30,6 +55,7 @@ class Snapshot:
     ranges: (n, n); ``ranges[i, j]`` is the distance drone i measured to drone j, ``nan`` where
         not measured. The diagonal is ignored.
     gnss_sigma: optional (horizontal, vertical) GNSS sigma per axis, metres.
+    gnss_common: optional (horizontal, vertical) sigma of a GNSS error common to all drones.
     range_sigma: optional ranging sigma, metres.
     source: optional (n,) of "gnss", "ins" or "none": where each report came from.
     prior: optional (n, 3) prior positions (previous verified position or INS), nan rows for
@@ -43,6 +69,7 @@ class Snapshot:
     source: np.ndarray | None = None
     prior: np.ndarray | None = None
     prior_sigma: float | None = None
+    gnss_common: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         rep = _as_float_array("reported", self.reported, "(n, 3)")
@@ -58,13 +85,12 @@ class Snapshot:
         vals = rng[off]
         if np.isinf(vals).any() or (vals[~np.isnan(vals)] < 0).any():
             raise ValueError("ranges: measured distances must be finite and >= 0 (nan = unmeasured)")
-        if self.gnss_sigma is not None:
-            gs = tuple(float(v) for v in self.gnss_sigma)
-            if len(gs) != 2 or min(gs) < 0:
-                raise ValueError("gnss_sigma: expected (horizontal, vertical), both >= 0")
-            object.__setattr__(self, "gnss_sigma", gs)
-        if self.range_sigma is not None and not float(self.range_sigma) >= 0:
-            raise ValueError("range_sigma: must be >= 0")
+        for name in ("gnss_sigma", "gnss_common"):
+            val = getattr(self, name)
+            if val is not None:
+                object.__setattr__(self, name, sigma_pair(name, val))
+        if self.range_sigma is not None and not _finite_nonnegative(self.range_sigma):
+            raise ValueError("range_sigma: expected a finite number >= 0, m")
         if self.source is not None:
             src = np.asarray(self.source, dtype=object)
             if src.shape != (n,) or not set(src.tolist()) <= set(SOURCES):
@@ -89,15 +115,21 @@ class Snapshot:
 class Verdict:
     """The leader's decision for one snapshot.
 
-    positions: (n, 3) verified positions; faulty: (n,) flags; status: "ok",
-    "unidentifiable" or "insufficient"; diagnostics: per-drone arrays (votes, anchors used,
-    deviation of the recovered position from the report, ...).
+    positions: (n, 3) verified positions (nan, or the prior, where not determined);
+    faulty: (n,) flags; status: one of `STATUSES`; drone_status: (n,) the status per drone
+    (``degenerate`` for a drone whose position is not determined, else the verdict's);
+    hpl, vpl: (n,) horizontal and vertical protection levels, m (inf where not determined,
+    nan for a detector without a noise model); diagnostics: per-drone arrays (votes, anchors
+    used, ...).
     """
 
     positions: np.ndarray
     faulty: np.ndarray
     status: str
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    drone_status: np.ndarray | None = None
+    hpl: np.ndarray | None = None
+    vpl: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -110,9 +142,14 @@ class SnapshotBatch:
     range_sigma: float | None = None
     prior: np.ndarray | None = None  # (T, n, 3), nan rows for none
     prior_sigma: float | None = None
+    gnss_common: tuple[float, float] | None = None
 
     @classmethod
     def of(cls, snapshot: Snapshot) -> SnapshotBatch:
+        if not isinstance(snapshot, Snapshot):
+            raise ValueError(
+                f"verify: expected a Snapshot(reported=..., ranges=...), got {type(snapshot).__name__}"
+            )
         return cls(
             reported=snapshot.reported[None],
             ranges=snapshot.ranges[None],
@@ -120,6 +157,19 @@ class SnapshotBatch:
             range_sigma=snapshot.range_sigma,
             prior=None if snapshot.prior is None else snapshot.prior[None],
             prior_sigma=snapshot.prior_sigma,
+            gnss_common=snapshot.gnss_common,
+        )
+
+    def subset(self, rows: np.ndarray) -> SnapshotBatch:
+        """The snapshots selected by ``rows`` (a boolean mask or indices)."""
+        return SnapshotBatch(
+            self.reported[rows],
+            self.ranges[rows],
+            self.gnss_sigma,
+            self.range_sigma,
+            None if self.prior is None else self.prior[rows],
+            self.prior_sigma,
+            self.gnss_common,
         )
 
     @property
@@ -130,12 +180,32 @@ class SnapshotBatch:
 
 @dataclass(frozen=True)
 class VerdictBatch:
-    """Verdicts of a batch: positions (T, n, 3), faulty (T, n), status (T,) of str."""
+    """Verdicts of a batch: positions (T, n, 3), faulty (T, n), status (T,) of str,
+    drone_status (T, n) of str (default: the verdict's status), hpl and vpl (T, n) in m
+    (default nan: no protection level)."""
 
     positions: np.ndarray
     faulty: np.ndarray
     status: np.ndarray
     diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    drone_status: np.ndarray | None = None
+    hpl: np.ndarray | None = None
+    vpl: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        status = np.asarray(self.status).astype("<U14")  # wide enough for every status
+        unknown = set(status.tolist()) - set(STATUSES)
+        if unknown:
+            raise ValueError(f"status: {sorted(unknown)} not in {STATUSES}")
+        object.__setattr__(self, "status", status)
+        T, n = self.faulty.shape
+        if self.drone_status is None:
+            object.__setattr__(self, "drone_status", np.repeat(status[:, None], n, axis=1))
+        else:
+            object.__setattr__(self, "drone_status", np.asarray(self.drone_status).astype("<U14"))
+        for name in ("hpl", "vpl"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full((T, n), np.nan))
 
     def item(self, t: int) -> Verdict:
         return Verdict(
@@ -143,4 +213,7 @@ class VerdictBatch:
             faulty=self.faulty[t],
             status=str(self.status[t]),
             diagnostics={k: v[t] for k, v in self.diagnostics.items()},
+            drone_status=self.drone_status[t],
+            hpl=self.hpl[t],
+            vpl=self.vpl[t],
         )

@@ -1,0 +1,438 @@
+"""Integrity of a joint estimate: whether it may be used, and how far it can be trusted.
+
+The statistical detectors (`clique`, `fde`, `joint`) each decide a trusted set; this module
+turns that set into a verdict a user can rely on, the way GNSS receivers do with RAIM/ARAIM:
+
+1. `robust_estimate`: the joint estimate with that trusted set, by Levenberg-Marquardt with
+   step acceptance from several starts (closed-form multilateration, the reports, the prior,
+   and any start the detector brings, such as the clique's or the GNC estimate); the lowest
+   converged cost wins. Converged starts that fit equally well but place a drone apart
+   (a mirror of near-coplanar anchors) leave that drone undetermined.
+2. `assess`: the statuses and protection levels.
+
+   - ``alarm``: the fit fails its own chi-square tests at ``p_fa`` (`joint.tests_pass`), the
+     solver did not converge, or a solution-separation test fails.
+   - ``degenerate``: the geometry does not fix some drone's position: fewer than 4 anchors
+     (3 with a prior), or near-coplanar or near-collinear anchors whose mirror image of the
+     estimate fits the ranges within the chi-square 1-dof quantile at ``p_fa``
+     (`mirror_ambiguous`), or two starts converge to equally good minima apart, or the
+     drone's 3x3 block of the inverse Fisher information is ill-conditioned (largest over
+     smallest eigenvalue above ``max_condition``). Also when excluding one trusted drone
+     would leave a drone's position unfixed: its fault could not be detected, so no
+     protection level exists. That drone's position becomes its prior if it
+     has one, else nan, and its protection levels are inf.
+   - ``ok`` otherwise. (``unidentifiable`` comes from the detectors themselves.)
+
+   Protection levels are ARAIM solution separation (Blanch et al.) on the model linearised at
+   the estimate: the all-in-view covariance P0 and, for every hypothesis "trusted drone j is
+   faulty" (its GNSS report and the ranges it measured excluded), the subset covariance Pj
+   and the separation dj = xj - x0 (one Gauss-Newton step from x0, exact for the linearised
+   model), whose covariance is Pj - P0. Per drone and axis: the test
+   |dj| <= K_fa sqrt(Pj - P0) (else ``alarm``) and the level
+   PL = max(K_md sigma0, max_j K_fa sigma_ss,j + K_md sigma_j). K_fa splits ``p_fa`` over
+   every test (hypotheses x drones x axes); K_md splits ``integrity_risk`` over the three axes
+   and the fault-free plus single-fault hypotheses. HPL = sqrt(PL_E^2 + PL_N^2), VPL = PL_U.
+   A GNSS error common to all drones (``gnss_common``) cancels in ranges and separations and
+   is added to every drone's covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import Field
+from scipy.special import ndtri
+
+from swarmraft.estimation.joint import (
+    chi2_quantile,
+    initial_positions,
+    residual_statistics,
+    tests_pass,
+    weighted_gauss_newton,
+)
+from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
+_MEMORY_FLOATS = 4_000_000  # per batch of hypothesis matrices (32 MB)
+
+
+class IntegrityParams(NoiseParams):
+    """What every statistical detector shares: the residual test, the tolerated number of
+    attackers, and the integrity budget."""
+
+    p_fa: float = Field(1e-3, gt=0, lt=1, description="false-alarm probability of the residual tests")
+    f_max: int | None = Field(None, ge=0, description="attackers to tolerate; None: (n - 1) // 2")
+    integrity_risk: float = Field(
+        1e-3, gt=0, lt=1, description="probability of an error above the protection level without alarm"
+    )
+    max_condition: float = Field(
+        1e6, gt=1, description="degenerate above this ratio of a drone's largest to smallest variance"
+    )
+
+
+def resolve_f_max(p: IntegrityParams, n: int, detector: str) -> int:
+    """``f_max`` for a swarm of n drones; more than n - 1 is a one-line ValueError."""
+    if p.f_max is None:
+        return (n - 1) // 2
+    if p.f_max > n - 1:
+        raise ValueError(f"{detector}.f_max: {p.f_max} attackers cannot be tolerated among n = {n} drones")
+    return p.f_max
+
+
+def status_rank(status: np.ndarray) -> np.ndarray:
+    """How serious each status is: ok 0, degenerate 1, unidentifiable 2, alarm 3."""
+    status = np.asarray(status).astype(str)
+    rank = np.zeros(status.shape, dtype=int)
+    for k, name in enumerate(STATUS_ORDER):
+        rank[status == name] = k
+    return rank
+
+
+def worst_status(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Elementwise the more serious of two status arrays (alarm > unidentifiable > degenerate > ok)."""
+    return np.asarray(STATUS_ORDER, dtype=object)[np.maximum(status_rank(a), status_rank(b))]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A joint estimate with its trusted set: positions (T, n, 3), cost (T,), converged (T,),
+    ambiguous (T, n): drones placed apart by two equally good minima."""
+
+    x: np.ndarray
+    cost: np.ndarray
+    converged: np.ndarray
+    ambiguous: np.ndarray
+
+
+def _trusted_weights(trusted: np.ndarray, prior: np.ndarray | None, shape: tuple[int, ...]):
+    gnss_w = trusted.astype(float)
+    range_w = np.broadcast_to(trusted[:, :, None], shape).astype(float)
+    if prior is not None:
+        prior = np.where(trusted[..., None], np.nan, prior)
+    return gnss_w, range_w, prior
+
+
+def robust_estimate(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
+    starts: tuple[np.ndarray, ...] = (),
+    iters: int = 50,
+    window: float = 10.83,
+) -> Estimate:
+    """The joint estimate with a trusted set, from several starts (closed form, its mirror
+    image, the reports, the prior, and ``starts``): GNSS of trusted drones, ranges measured
+    by trusted drones, priors (nan rows = none) of untrusted drones. Converged minima whose
+    cost is within ``window`` (default: chi-square 1 dof, 0.999) of the best and that place
+    an untrusted drone further apart than its GNSS error could explain are ambiguous."""
+    T, n, _ = reported.shape
+    if not (prior is not None and prior_sigma):
+        prior = None
+    gnss_w, range_w, pr = _trusted_weights(trusted, prior, ranges.shape)
+    closed = initial_positions(reported, ranges, trusted, pr)
+    x0 = [closed, mirrored(closed, ranges, trusted), reported]
+    if pr is not None:
+        x0.append(np.where(np.isnan(pr), reported, pr))
+    x0 += [np.where(np.isfinite(s), s, reported) for s in starts]
+    S = len(x0)
+    X, cost, conv = weighted_gauss_newton(
+        np.concatenate(x0),
+        np.tile(reported, (S, 1, 1)),
+        np.tile(ranges, (S, 1, 1)),
+        np.tile(gnss_w, (S, 1)),
+        np.tile(range_w, (S, 1, 1)),
+        noise.gnss_cov,
+        noise.range_sigma,
+        iters,
+        prior=None if pr is None else np.tile(pr, (S, 1, 1)),
+        prior_sigma=prior_sigma,
+        full=True,
+    )
+    X, cost, conv = X.reshape(S, T, n, 3), cost.reshape(S, T), conv.reshape(S, T)
+    score = np.where(conv, cost, np.inf)
+    best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
+    t = np.arange(T)
+    x, c = X[best, t], cost[best, t]
+    near = conv & (cost <= c[None] + window)
+    far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
+    apart = np.linalg.norm(X - x[None], axis=3) > far
+    ambiguous = (near[..., None] & apart).any(axis=0) & ~trusted
+    return Estimate(x, c, conv[best, t], ambiguous)
+
+
+def _hypothesis_information(
+    x: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    keep: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per drone j (as one fault hypothesis): the Fisher information A (T, n, 3n, 3n) of its
+    GNSS report (if trusted) and the ranges it measured (if trusted) to drones in ``keep``
+    (T, n), and their gradient b (T, n, 3n) at x. The trusted set's information is the sum
+    over j. Drones outside ``keep`` (undetermined) take no part: an estimate that is still
+    crawling along a direction the geometry does not fix would spoil the others'."""
+    T, n, _ = x.shape
+    G = np.linalg.inv(noise.gnss_cov)
+    w_r = 1.0 / noise.range_sigma**2
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    u = diff / np.where(dist > 0, dist, 1.0)[..., None]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
+    meas &= keep[:, :, None] & keep[:, None, :]
+    r = np.where(meas, dist - np.nan_to_num(ranges), 0.0)
+    uu = np.einsum("tjk,tjka,tjkb->tjkab", meas * w_r, u, u)  # (T, j, k, 3, 3)
+    A = np.zeros((T, n, n, 3, n, 3))
+    idx = np.arange(n)
+    # block (j, j): GNSS + sum_k w u u^T; blocks (k, k): w u u^T; (j, k), (k, j): -w u u^T
+    A[:, idx, idx, :, idx, :] = (np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)).transpose(
+        1, 0, 2, 3
+    )
+    A[:, idx[:, None], idx[None, :], :, idx[None, :], :] += uu.transpose(1, 2, 0, 3, 4)
+    A[:, idx[:, None], idx[:, None], :, idx[None, :], :] -= uu.transpose(1, 2, 0, 3, 4)
+    A[:, idx[:, None], idx[None, :], :, idx[:, None], :] -= uu.transpose(1, 2, 0, 3, 4)
+    b = np.zeros((T, n, n, 3))
+    e = np.where(trusted[..., None], np.einsum("ab,tjb->tja", G, x - reported), 0.0)
+    b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
+    b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
+    return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n)
+
+
+def anchor_planes(
+    x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For every drone i, its anchors (T, i, k): trusted drones k that measured a range to
+    it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
+    ascending order of spread (column 0: the normal of their best-fit plane)."""
+    n = x.shape[1]
+    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+    w = anchors.astype(float)
+    cnt = w.sum(axis=2)
+    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
+    dev = x[:, None, :, :] - mean[:, :, None, :]  # (T, i, k, 3)
+    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    return anchors, cnt, mean, vec
+
+
+def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """x with every untrusted drone reflected across the best-fit plane of its anchors: a
+    start that reaches the other minimum of a near-coplanar geometry."""
+    _, _, mean, vec = anchor_planes(x, ranges, trusted)
+    normal = vec[..., :, 0]
+    h = np.einsum("tia,tia->ti", x - mean, normal)
+    return np.where(trusted[..., None], x, x - 2 * h[..., None] * normal)
+
+
+def mirror_ambiguous(
+    x: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    threshold: float,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
+) -> np.ndarray:
+    """Untrusted drones (T, n) whose position the data cannot tell from a mirror image:
+    fewer than 4 anchors (trusted drones ranging with them; 3 with a prior), or the
+    reflection of the estimate across the best-fit plane of its anchors (and across the
+    plane through their best-fit line, for near-collinear anchors) changes the chi-square of
+    its ranges (and prior) by less than ``threshold`` while lying further from it than the
+    linearised uncertainty covers (sqrt(threshold) sigma along the plane's normal: closer
+    than that, the protection level covers the mirror)."""
+    T, n, _ = x.shape
+    towards = np.swapaxes(ranges, 1, 2)  # d_ki: anchor k's measurement of drone i
+    anchors, cnt, mean, vec = anchor_planes(x, ranges, trusted)
+    w = anchors.astype(float)
+    has_prior = np.zeros((T, n), dtype=bool)
+    if prior is not None and prior_sigma:
+        has_prior = np.isfinite(prior).all(axis=2)
+    inv_s2 = 1.0 / noise.range_sigma**2
+
+    def chi2(pos: np.ndarray) -> np.ndarray:
+        dist = np.linalg.norm(pos[:, :, None, :] - x[:, None, :, :], axis=3)
+        q = np.where(anchors, (dist - np.nan_to_num(towards)) ** 2 * inv_s2, 0.0).sum(axis=2)
+        if has_prior.any():
+            q = q + np.where(
+                has_prior, np.sum((pos - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0
+            )
+        return q
+
+    base = chi2(x)
+    # the drone's own information from its anchors (and prior), for the linearised sigma
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    u = diff / np.maximum(np.linalg.norm(diff, axis=3), 1e-300)[..., None]
+    info = np.einsum("tik,tika,tikb->tiab", w * inv_s2, u, u)
+    if has_prior.any():
+        info = info + np.where(has_prior, 1.0 / prior_sigma**2, 0.0)[..., None, None] * np.eye(3)
+    cov = np.linalg.inv(info + 1e-12 * max(float(np.abs(info).max(initial=0.0)), 1.0) * np.eye(3))
+    ambiguous = cnt < np.where(has_prior, 3, 4)
+    for axis in (0, 1):
+        normal = vec[..., :, axis]  # (T, i, 3): least and second-least spread
+        h = np.einsum("tia,tia->ti", x - mean, normal)
+        sigma_n = np.sqrt(np.maximum(np.einsum("tia,tiab,tib->ti", normal, cov, normal), 0.0))
+        # distinct (beyond what the linearised uncertainty covers) and as good a fit
+        distinct = 2 * np.abs(h) > np.sqrt(threshold) * sigma_n
+        ambiguous |= distinct & (chi2(x - 2 * h[..., None] * normal) - base < threshold)
+    return ambiguous & ~trusted
+
+
+def _blocks(P: np.ndarray) -> np.ndarray:
+    """3x3 diagonal blocks (..., n, 3, 3) of matrices (..., 3n, 3n)."""
+    *lead, N, _ = P.shape
+    n = N // 3
+    Q = P.reshape(*lead, n, 3, n, 3)
+    idx = np.arange(n)
+    return np.moveaxis(Q[..., idx, :, idx, :], 0, -3)
+
+
+def _inverse(J: np.ndarray) -> np.ndarray:
+    """Inverse of information matrices with a ridge far below any real information, so an
+    unobservable direction shows up as a huge variance instead of an exception."""
+    N = J.shape[-1]
+    scale = np.maximum(np.abs(np.diagonal(J, axis1=-2, axis2=-1)).max(axis=-1), 1e-300)
+    return np.linalg.inv(J + (1e-10 * scale)[..., None, None] * np.eye(N))
+
+
+def _eigenvalues(C: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues of symmetric 3x3 blocks; inf where a block is not finite."""
+    finite = np.isfinite(C).all(axis=(-1, -2))
+    out = np.full(C.shape[:-1], np.inf)
+    out[..., 0] = 0.0
+    out[finite] = np.linalg.eigvalsh(C[finite])
+    return out
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """status (T,), per-drone status (T, n), hpl and vpl (T, n) in m, positions (T, n, 3)
+    with undetermined drones at their prior or nan, and sigma (T, n, 3): the per-axis
+    standard deviation of the all-in-view solution; alarm_cause (T,) why an alarm was raised."""
+
+    status: np.ndarray
+    drone_status: np.ndarray
+    hpl: np.ndarray
+    vpl: np.ndarray
+    positions: np.ndarray
+    sigma: np.ndarray
+    alarm_cause: np.ndarray  # (T,) "", "residual test", "separation test" or "not converged"
+
+
+def assess(
+    est: Estimate,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p: IntegrityParams,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
+) -> Assessment:
+    """Statuses and protection levels of a joint estimate (see the module docstring)."""
+    x = est.x
+    T, n, _ = x.shape
+    _, gq, total, dof = residual_statistics(x, reported, ranges, trusted, noise)
+    alarm = ~tests_pass(gq, total, dof, trusted, p.p_fa)
+    cause = np.where(alarm, "residual test", "").astype(object)
+    common = np.zeros(3) if noise.common_var is None else noise.common_var
+    hpl, vpl = np.full((T, n), np.inf), np.full((T, n), np.inf)
+    sigma = np.full((T, n, 3), np.inf)
+    threshold = float(chi2_quantile(1 - p.p_fa, 1))
+    undetermined = est.ambiguous | mirror_ambiguous(x, ranges, trusted, noise, threshold, prior, prior_sigma)
+    unverifiable = np.zeros((T, n), dtype=bool)
+    n_h = np.maximum(trusted.sum(axis=1), 1)
+    k_fa = -ndtri(p.p_fa / (2 * 3 * n * n_h))  # (T,)
+    k_md = -ndtri(p.integrity_risk / (2 * 3 * (n_h + 1)))
+    prior_info = np.zeros((T, n, 3))
+    if prior is not None and prior_sigma:
+        prior_info = np.where(~trusted[..., None] & np.isfinite(prior), 1.0 / prior_sigma**2, 0.0)
+    step = max(1, _MEMORY_FLOATS // (n * (3 * n) ** 2))
+    for lo in range(0, T, step):
+        s = slice(lo, min(T, lo + step))
+        A, b = _hypothesis_information(x[s], reported[s], ranges[s], trusted[s], noise, ~undetermined[s])
+        tr = trusted[s]
+        J = np.einsum("tj,tjab->tab", tr.astype(float), A)
+        J[:, np.arange(3 * n), np.arange(3 * n)] += prior_info[s].reshape(-1, 3 * n)
+        P0 = _inverse(J)
+        C0 = _blocks(P0)  # (t, n, 3, 3)
+        ev = _eigenvalues(C0)
+        undetermined[s] |= ev[..., 2] > p.max_condition * np.maximum(ev[..., 0], 1e-300)
+        var0 = np.diagonal(C0, axis1=-2, axis2=-1) + common
+        sigma[s] = np.sqrt(var0)
+        pl = k_md[s, None, None] * np.sqrt(var0)  # fault-free
+        Pj = _inverse(J[:, None] - A)  # (t, j, 3n, 3n)
+        # one Gauss-Newton step of the subset problem from x0, where the full gradient is zero:
+        # the separation is Pj times the gradient of what hypothesis j leaves out
+        dj = np.einsum("tjab,tjb->tja", Pj, b).reshape(-1, n, n, 3)
+        Cj = _blocks(Pj)  # (t, j, n, 3, 3)
+        evj = _eigenvalues(Cj)
+        ill = evj[..., 2] > p.max_condition * np.maximum(evj[..., 0], 1e-300)
+        unverifiable[s] = (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
+        var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
+        var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
+        thr = k_fa[s, None, None, None] * np.sqrt(var_ss)
+        live = tr[:, :, None, None]
+        fixed = ~undetermined[s][:, None, :, None]
+        separated = (live & fixed & (np.abs(dj) > thr + 1e-9)).any(axis=(1, 2, 3))
+        cause[s] = np.where(~alarm[s] & separated, "separation test", cause[s])
+        alarm[s] |= separated
+        pl_j = thr + k_md[s, None, None, None] * np.sqrt(var_j + common)
+        pl = np.maximum(pl, np.where(live, pl_j, 0.0).max(axis=1))
+        hpl[s] = np.hypot(pl[..., 0], pl[..., 1])
+        vpl[s] = pl[..., 2]
+    # a solver that has not converged is an alarm, unless it crawls along a direction the
+    # geometry does not fix (then the drones concerned are degenerate)
+    crawl = ~est.converged & ~undetermined.any(axis=1)
+    cause = np.where(~alarm & crawl, "not converged", cause)
+    alarm |= crawl
+    positions = x.copy()
+    fill = np.full((T, n, 3), np.nan) if prior is None else prior
+    positions[undetermined] = fill[undetermined]
+    weak = undetermined | unverifiable
+    hpl[weak] = np.inf
+    vpl[weak] = np.inf
+    status = np.where(alarm, "alarm", np.where(weak.any(axis=1), "degenerate", "ok")).astype(object)
+    drone_status = np.where(alarm[:, None], "alarm", np.where(weak, "degenerate", "ok")).astype(object)
+    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str))
+
+
+def finish(
+    batch: SnapshotBatch,
+    p: IntegrityParams,
+    noise: NoiseModel,
+    trusted: np.ndarray,
+    starts: tuple[np.ndarray, ...] = (),
+    status: np.ndarray | None = None,
+    faulty: np.ndarray | None = None,
+    diagnostics: dict[str, np.ndarray] | None = None,
+) -> VerdictBatch:
+    """The verdict of a decided trusted set (T, n): robust estimate, statuses and protection
+    levels; ``status`` (T,) carries what the detector already knows (``unidentifiable``),
+    which the assessment can only make more serious. The flagged drones are ``faulty``
+    (default: those outside the trusted set)."""
+    reported = np.asarray(batch.reported, float)
+    ranges = np.asarray(batch.ranges, float)
+    prior = None if batch.prior is None else np.asarray(batch.prior, float)
+    window = float(chi2_quantile(1 - p.p_fa, 1))
+    est = robust_estimate(reported, ranges, trusted, noise, prior, batch.prior_sigma, starts, window=window)
+    a = assess(est, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
+    final = a.status if status is None else worst_status(a.status, status)
+    drone_status = a.drone_status if status is None else worst_status(a.drone_status, status[:, None])
+    cause = (
+        a.alarm_cause if status is None else np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
+    )
+    diag = {"sigma": a.sigma, "trusted": trusted, "alarm_cause": cause, **(diagnostics or {})}
+    return VerdictBatch(
+        positions=a.positions,
+        faulty=~trusted if faulty is None else faulty,
+        status=final.astype(str),
+        diagnostics=diag,
+        drone_status=drone_status.astype(str),
+        hpl=a.hpl,
+        vpl=a.vpl,
+    )

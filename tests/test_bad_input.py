@@ -183,3 +183,21 @@ def test_a_file_that_is_not_text_is_named(cwd, command):
     (cwd / "bin.toml").write_bytes(b"\xff\xfe")
     line = fails_cleanly([*command, "bin.toml", "--out", "o"], f"{command[1]} bin.toml: not a text file", cwd)
     assert "utf-8" in line
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["compare", "--workers", "0"], "--workers: 0 is not in the range x>=1"),
+        (["demo", "--workers", "0"], "--workers: 0 is not in the range x>=1"),
+        (
+            ["compare", "--scheduler", "bogus"],
+            "--scheduler: expected tcp://HOST:PORT or 'local', got 'bogus'",
+        ),
+        (["compare", "--trials", "0"], "--trials: 0 is not in the range x>=1"),
+        (["curves", "--detectors", ""], "--detectors: no names in ''"),
+        (["compare", "--n", "1-3"], "n: every swarm size must be >= 3"),
+    ],
+)
+def test_other_commands_check_the_same_options(cwd, args, needle):
+    fails_cleanly([*args, "--out", "o"], needle, cwd)

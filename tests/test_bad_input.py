@@ -201,3 +201,24 @@ def test_a_file_that_is_not_text_is_named(cwd, command):
 )
 def test_other_commands_check_the_same_options(cwd, args, needle):
     fails_cleanly([*args, "--out", "o"], needle, cwd)
+
+
+@pytest.mark.parametrize(
+    "extra,args,needle",
+    [
+        ('[protocol]\ndetector = "nope"\n', [], "s.toml: protocol.detector: unknown name 'nope'"),
+        (
+            '[protocol]\ndetector = "joint"\ndetector_params = {colour = 1}\n',
+            [],
+            "s.toml: protocol.detector_params: joint.colour: unknown parameter",
+        ),
+        ("", ["--detector", "nope"], "--detector: unknown name 'nope'"),
+        (
+            '[protocol]\ndetector = "joint"\ndetector_params = {c_gnss = 5.0}\n',
+            ["--detector", "paper"],
+            "--detector: paper.c_gnss: unknown parameter",
+        ),
+    ],
+)
+def test_mission_detector_is_checked_before_anything_is_written(cwd, extra, args, needle):
+    fails_cleanly(["mission", "--scenario", scenario(cwd, extra), *args, "--out", "o"], needle, cwd)

@@ -206,10 +206,9 @@ def mission(scenario_file, out, seed, detector, as_json) -> None:
 
     sc = load_scenario(scenario_file, seed=seed)
     if detector:
-        sc = sc.model_copy(update={"protocol": sc.protocol.model_copy(update={"detector": detector})})
-        from swarmraft.estimation import get_detector
+        from swarmraft.sim.scenario import with_detector
 
-        get_detector(detector)
+        sc = with_detector(sc, detector)
     out = out or Path("results") / sc.name
     say = err_console if as_json else console
     say.print(f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}")

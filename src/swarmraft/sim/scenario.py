@@ -13,6 +13,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from swarmraft.estimation.registry import detector_params, get_detector
+
 #: a scenario's name names its output folder: one path component, no leading dot
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
 
@@ -172,8 +174,26 @@ class Scenario(_Strict):
                 raise ValueError(f"fault[{k}].value: loss needs a value")
         if self.raft.heartbeat_tick >= self.raft.election_tick:
             raise ValueError("raft.heartbeat_tick: must be below election_tick")
+        try:
+            get_detector(self.protocol.detector)
+        except ValueError as exc:
+            raise ValueError(f"protocol.{exc}") from None
+        try:
+            detector_params(self.protocol.detector, **self.protocol.detector_params)
+        except ValueError as exc:
+            raise ValueError(f"protocol.detector_params: {exc}") from None
         return self
 
     @property
     def steps(self) -> int:
         return int(round(self.duration_s / self.dt_s))
+
+
+def with_detector(sc: Scenario, name: str) -> Scenario:
+    """``sc`` flown with another detector (the command line's ``--detector``), its parameters
+    checked against it; a bad one is a one-line ValueError naming ``--detector``."""
+    try:
+        detector_params(name, **sc.protocol.detector_params)
+    except ValueError as exc:
+        raise ValueError(f"--detector: {str(exc).removeprefix('detector: ')}") from None
+    return sc.model_copy(update={"protocol": sc.protocol.model_copy(update={"detector": name})})

@@ -134,6 +134,14 @@ def test_raft_fuzz_needs_3_nodes(cwd):
             "outage[0].start_s: 3 s is not before the mission's end (2 s)",
         ),
         ('[[fault]]\nkind = "crash-leader"\nat_s = 9\n', "fault[0].at_s: 9 s is not before"),
+        ("dt_s = 5\n", "dt_s: a step of 5 s is longer than the mission (2 s)"),
+        ("[motion]\nwaypoints = []\n", "motion.waypoints: give at least 2 waypoints"),
+        ("[motion]\nwaypoints = [[0, 0, 0]]\n", "motion.waypoints: give at least 2 waypoints"),
+        ("[network]\ndelay_ms = [5, 1]\n", "network.delay_ms: low 5 ms is above high 1 ms"),
+        (
+            '[[spoof]]\nkind = "collusion"\ndrones = [2]\nstart_s = 0.2\npivots = [2]\n',
+            "spoof[0].pivots: a pivot is an honest drone, and 2 is spoofed",
+        ),
     ],
 )
 def test_scenario_field_is_named(cwd, extra, needle):

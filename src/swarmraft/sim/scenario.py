@@ -11,7 +11,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from swarmraft.estimation.registry import detector_params, get_detector
 
@@ -39,6 +39,10 @@ def find_scenario(name_or_path: str | Path) -> Path:
     return shipped_scenarios().get(path.name.removesuffix(".toml"), path)
 
 
+def _ids(ids: list[int]) -> str:
+    return ", ".join(str(i) for i in ids)
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -49,6 +53,13 @@ class MotionConfig(_Strict):
     speed: float = Field(7.0, ge=0, description="m/s")
     waypoints: list[tuple[float, float, float]] | None = None
     area_size: float = Field(100.0, gt=0, description="static cube side, m")
+
+    @field_validator("waypoints")
+    @classmethod
+    def _path(cls, v: list | None) -> list | None:
+        if v is not None and len(v) < 2:
+            raise ValueError("give at least 2 waypoints (a path from the first to the last)")
+        return v
 
 
 class GNSSTimeConfig(_Strict):
@@ -72,6 +83,13 @@ class NetworkConfig(_Strict):
     loss: float = Field(0.0, ge=0, le=1)
     duplicate: float = Field(0.0, ge=0, le=1)
     reorder: float = Field(0.0, ge=0, le=1)
+
+    @field_validator("delay_ms")
+    @classmethod
+    def _delay(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= v[0] <= v[1]:
+            raise ValueError(f"low {v[0]:g} ms is above high {v[1]:g} ms, or negative")
+        return v
 
 
 class RaftTimeConfig(_Strict):
@@ -147,10 +165,18 @@ class Scenario(_Strict):
             if end is not None and end <= start:
                 raise ValueError(f"{where}.end_s: {end:g} s is not after start_s = {start:g} s")
 
+        if self.dt_s > self.duration_s:
+            raise ValueError(
+                f"dt_s: a step of {self.dt_s:g} s is longer than the mission ({self.duration_s:g} s)"
+            )
         for k, s in enumerate(self.spoof):
             timed(s.start_s, s.end_s, f"spoof[{k}]")
             check(s.drones, f"spoof[{k}].drones")
             check(s.pivots, f"spoof[{k}].pivots")
+            if both := sorted(set(s.pivots) & set(s.drones)):
+                raise ValueError(
+                    f"spoof[{k}].pivots: a pivot is an honest drone, and {_ids(both)} is spoofed"
+                )
             if s.kind == "collusion" and not 1 <= len(s.pivots) <= 3:
                 raise ValueError(f"spoof[{k}].pivots: collusion needs 1 to 3 pivot drones")
         for k, o in enumerate(self.outage):

@@ -289,3 +289,23 @@ def test_printed_paths_are_never_wrapped(tmp_path):
     assert r.exit_code == 0, r.output
     assert f"  wrote {out / 'cells.csv'}\n" in r.output
     assert f"-> {out}\n" in r.output
+
+
+def test_headings_never_cut_a_path():
+    from rich.console import Console
+
+    from swarmraft.cli.app import heading
+
+    con = Console(width=80, record=True, file=open("/dev/null", "w"), color_system=None)  # noqa: SIM115
+    heading("[bold]mission[/] demo-mission: 9 drones, 60 s -> results/demo/mission", con)
+    title = (
+        "[bold]detectors compared[/]: realistic, n = 17, f = 8, 250 identical trials -> results/demo/compare"
+    )
+    heading(title, con)
+    lines = con.export_text().splitlines()
+    assert "demo-mission: 9 drones, 60 s -> results/demo/mission" in lines[0] and lines[0].startswith("─")
+    assert set(lines[1]) == {"─"}
+    assert (
+        lines[2]
+        == "detectors compared: realistic, n = 17, f = 8, 250 identical trials -> results/demo/compare"
+    )

@@ -19,6 +19,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 from rich.table import Table
+from rich.text import Text
 
 # Wide tables even when the output is a pipe or a log file (rich would assume 80 columns).
 _WIDTH = None if sys.stdout.isatty() else 130
@@ -97,6 +98,17 @@ def progress_bar(
         return lambda k: prog.advance(task, k)
 
     return prog, start
+
+
+def heading(title: str, to: Console | None = None) -> None:
+    """A section heading: a rule with ``title`` in it, or, when the title would be cut there
+    (a long output path), a plain rule with the title whole on the line under it."""
+    out = to or console
+    if Text.from_markup(title).cell_len + 6 <= out.width:
+        out.rule(title)
+    else:
+        out.rule()
+        out.print(title, soft_wrap=True)
 
 
 def print_table(table_and_legend: tuple[Table, str], to: Console | None = None) -> None:

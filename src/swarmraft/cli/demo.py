@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from swarmraft.cli.app import console, main, print_table, progress_bar
+from swarmraft.cli.app import console, heading, main, print_table, progress_bar
 from swarmraft.cli.missions import mission_figures, print_mission_summary
 from swarmraft.cli.options import WORKERS, OutFolder
 from swarmraft.cli.sweeps import calibration_line, draw_figures, report_compare
@@ -52,7 +52,7 @@ def demo(out, trials, workers, scenario_file) -> None:
     for preset, config in configs.items():
         check_resume(out / preset, config)
     folder = out / "mission"
-    console.rule(f"[bold]mission[/] {sc.name}: {sc.drones} drones, {sc.duration_s:g} s -> {folder}")
+    heading(f"[bold]mission[/] {sc.name}: {sc.drones} drones, {sc.duration_s:g} s -> {folder}")
     prog, start = progress_bar("mission", "steps")
     with prog:
         result = run_and_write(sc, folder, start(sc.steps + 1, 0))
@@ -60,7 +60,7 @@ def demo(out, trials, workers, scenario_file) -> None:
     written += [folder / "steps.csv", folder / "summary.json", *mission_figures(result, folder)]
     for preset, config in configs.items():
         folder = out / preset
-        console.rule(f"[bold]{preset} preset[/]: n = 2f+1, {config.trials} trials per cell -> {folder}")
+        heading(f"[bold]{preset} preset[/]: n = 2f+1, {config.trials} trials per cell -> {folder}")
         prog, start = progress_bar(preset)
         with prog:
             result = run_sweep(config, folder, workers=workers, progress=start)
@@ -81,7 +81,7 @@ def demo(out, trials, workers, scenario_file) -> None:
     from swarmraft.experiments.compare import run_compare
 
     folder = out / "compare"
-    console.rule(
+    heading(
         f"[bold]detectors compared[/]: realistic, n = 17, f = 8, {n_compare} identical trials -> {folder}"
     )
     prog, start = progress_bar("compare")
@@ -95,6 +95,6 @@ def demo(out, trials, workers, scenario_file) -> None:
             progress=start,
         )
     written += report_compare(table, folder, "mean error (m) and efficiency against the Cramér-Rao bound")
-    console.rule("[bold]written[/]")
+    heading("[bold]written[/]")
     for p in written:
         console.print(f"  {p}", soft_wrap=True)

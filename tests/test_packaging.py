@@ -104,3 +104,10 @@ def test_ctrl_c_exits_130_not_2(tmp_path, monkeypatch):
     assert r.exit_code == 130, r.output
     assert "error:" not in r.output
     assert r.output.strip().splitlines()[-1] == "interrupted"
+
+
+def test_no_command_prints_the_help():
+    r = CliRunner().invoke(main, [])
+    assert r.exit_code == 0, r.output
+    assert r.output.startswith("Usage: ") and "error" not in r.output
+    assert "\n  sweep " in r.output and "\n  demo " in r.output

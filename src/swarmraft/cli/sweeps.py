@@ -149,7 +149,7 @@ def calibration_line(out: Path) -> str | None:
 
 
 @main.command()
-@click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "all"]))
+@click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "integrity", "all"]))
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
     "--out", type=ImageFile(), help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png)"
@@ -166,7 +166,9 @@ def figure(kind, results, out, view) -> None:
 
     scaling: mean error against n (log axis); distribution: box plots of per-trial errors;
     recovery: the paper's picture for (n, f) = (6, 2), (11, 5), (16, 7) drawn with the
-    folder's config and seed; all: the three.
+    folder's config and seed; integrity: the Stanford diagram (error against protection
+    level of every ok verdict, misleading information marked; detectors with a noise model
+    only); all: scaling, distribution and recovery.
     """
     for path in draw_figures(kind, results, out, view):
         console.print(f"wrote {path}", soft_wrap=True)
@@ -179,8 +181,8 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
     from swarmraft.experiments.sweep import load_results
 
     cells, trials, run = load_results(Path(results))
-    if kind in ("distribution", "all") and not trials:
-        raise ValueError(f"{Path(results) / 'trials.csv'}: missing; the distribution figure needs it")
+    if kind in ("distribution", "integrity", "all") and not trials:
+        raise ValueError(f"{Path(results) / 'trials.csv'}: missing; the {kind} figure needs it")
     kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
     paths = []
     for k in kinds:
@@ -191,6 +193,10 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
         elif k == "distribution":
             title = f"preset {cells['preset'][0]}, detector {cells['detector'][0]}"
             paths.append(viz.distribution(trials, target, title))
+        elif k == "integrity":
+            cellset = ", ".join(f"({a}, {b})" for a, b in zip(cells["n"], cells["f"], strict=True))
+            title = f"{cells['preset'][0]}, {cells['detector'][0]}, (n, f) = {cellset}"
+            paths.append(viz.stanford(trials, target, title))
         else:
             config = SweepConfig(**run["config"])
             paths.append(viz.recovery(recovery_cases(config), target, view))

@@ -3,8 +3,14 @@
 - `anchor_crb`: one drone located from ranges to K anchors, at known positions or with a
   GNSS covariance S_k each: J = sum_k u_k u_k^T / (sigma_d^2 + u_k^T S_k u_k) (+ P_prior^-1).
 - `swarm_crb`: the whole swarm with the faulty set known: GNSS information of the honest
-  drones, optional INS priors, and one (1/sigma_d^2) u u^T term per measured range coupling
-  the two drones; each drone's bound is its 3x3 block of J^-1.
+  drones, optional INS priors, and one (1/sigma_d^2) u u^T term per range measurement
+  actually made, coupling the two drones (``symmetric``: d_ij and d_ji are one measurement
+  stored twice); each drone's bound is its 3x3 block of J^-1.
+
+A GNSS error common to all drones (``common_cov``) is not averaged away by more drones:
+the GNSS errors of the honest drones are correlated (covariance I (x) S + 1 1^T (x) C), and
+their information is H^T R^-1 H, by the Woodbury identity. Ranges cannot see a common
+translation, so for a drone ranged from anchors the common covariance adds to the bound.
 
 RMSE >= sqrt(trace(bound)). Everything is batched over a leading trial axis.
 """
@@ -33,11 +39,13 @@ def anchor_crb(
     mask: np.ndarray | None = None,
     anchor_cov: np.ndarray | None = None,
     prior_cov: np.ndarray | None = None,
+    common_cov: np.ndarray | None = None,
 ) -> np.ndarray:
     """Bound (B, 3, 3) for drones at x (B, 3) ranged from anchors (B, K, 3); ``anchor_cov``
-    (3, 3) or (B, K, 3, 3) for uncertain anchors; ``prior_cov`` (3, 3) or (B, 3, 3) for an
-    INS prior. Returns inf where the geometry gives no bound (fewer than 3 independent
-    directions and no prior)."""
+    (3, 3) or (B, K, 3, 3) for uncertain anchors (each anchor's own error); ``common_cov``
+    (3, 3) for an anchor error common to all of them, which moves the solution with it;
+    ``prior_cov`` (3, 3) or (B, 3, 3) for an INS prior. Returns inf where the geometry gives
+    no bound (fewer than 3 independent directions and no prior)."""
     x, anchors = np.asarray(x, float), np.asarray(anchors, float)
     B, K, _ = anchors.shape
     mask = np.ones((B, K), bool) if mask is None else np.asarray(mask, bool)
@@ -52,7 +60,10 @@ def anchor_crb(
     J = np.einsum("bk,bki,bkj->bij", w, u, u)
     if prior_cov is not None:
         J = J + np.linalg.inv(np.broadcast_to(np.asarray(prior_cov, float), (B, 3, 3)))
-    return _safe_inv(J)
+    C = _safe_inv(J)
+    if common_cov is not None:
+        C = C + np.asarray(common_cov, float)  # ranges are blind to a common translation
+    return C
 
 
 def _safe_inv(J: np.ndarray) -> np.ndarray:
@@ -72,10 +83,14 @@ def swarm_information(
     gnss_cov: np.ndarray,
     range_sigma: float,
     ins_cov: np.ndarray | None = None,
+    common_cov: np.ndarray | None = None,
+    symmetric: bool = False,
 ) -> np.ndarray:
     """Fisher information (T, 3n, 3n) of all positions: GNSS of ``trusted`` drones (T, n),
-    one term per measured ordered pair (``measured`` (T, n, n): d_ij and d_ji are two
-    independent measurements), INS priors (3, 3) or (T, n, 3, 3) if given."""
+    their own errors of covariance ``gnss_cov`` plus an error common to all of covariance
+    ``common_cov``; one term per range measurement (``measured`` (T, n, n): d_ij and d_ji
+    are two independent measurements, or with ``symmetric`` one measurement stored twice);
+    INS priors (3, 3) or (T, n, 3, 3) if given."""
     truth = np.asarray(truth, float)
     T, n, _ = truth.shape
     if range_sigma <= 0:
@@ -83,7 +98,17 @@ def swarm_information(
     G = np.linalg.inv(np.asarray(gnss_cov, float))
     J = np.zeros((T, n, 3, n, 3))
     idx = np.arange(n)
-    J[:, idx, :, idx, :] += np.where(np.asarray(trusted, bool)[..., None, None], G, 0.0).transpose(1, 0, 2, 3)
+    tr = np.asarray(trusted, bool)
+    J[:, idx, :, idx, :] += np.where(tr[..., None, None], G, 0.0).transpose(1, 0, 2, 3)
+    if common_cov is not None:
+        # Woodbury: R^-1 = I (x) G - (1 (x) G) (C^-1 + m G)^-1 (1^T (x) G), written with
+        # C (I + m G C)^-1 so that a singular C (no common error on an axis) is allowed
+        Cc = np.asarray(common_cov, float)
+        m = tr.sum(axis=1).astype(float)  # (T,)
+        M = np.einsum("ab,tbc->tac", Cc, np.linalg.inv(np.eye(3) + m[:, None, None] * (G @ Cc)))
+        GMG = np.einsum("ab,tbc,cd->tad", G, M, G)
+        both = (tr[:, :, None] & tr[:, None, :]).astype(float)
+        J -= np.einsum("tij,tab->tiajb", both, GMG)
     if ins_cov is not None:
         P = np.linalg.inv(np.broadcast_to(np.asarray(ins_cov, float), (T, n, 3, 3)))
         J[:, idx, :, idx, :] += P.transpose(1, 0, 2, 3)
@@ -91,7 +116,11 @@ def swarm_information(
     m = np.asarray(measured, bool) & ~np.eye(n, dtype=bool)
     # each ordered measurement (i, j) adds w u u^T to blocks ii, jj and -w u u^T to ij, ji;
     # the two directions share u u^T, so count them together
-    cnt = (m.astype(float) + np.swapaxes(m, 1, 2).astype(float)) / range_sigma**2  # symmetric
+    mt = np.swapaxes(m, 1, 2)
+    if symmetric:  # one measurement per linked pair
+        cnt = (m | mt).astype(float) / range_sigma**2
+    else:
+        cnt = (m.astype(float) + mt.astype(float)) / range_sigma**2  # symmetric in i, j
     uu = np.einsum("tij,tijk,tijl->tijkl", cnt, u, u)
     J -= uu.transpose(0, 1, 3, 2, 4) * 1.0  # off-diagonal blocks: -w u u^T
     J[:, idx, :, idx, :] += uu.sum(axis=2).transpose(1, 0, 2, 3)
@@ -105,9 +134,12 @@ def swarm_crb(
     gnss_cov: np.ndarray,
     range_sigma: float,
     ins_cov: np.ndarray | None = None,
+    common_cov: np.ndarray | None = None,
+    symmetric: bool = False,
 ) -> np.ndarray:
-    """Per-drone bound (T, n, 3, 3): the 3x3 blocks of the inverse swarm information."""
-    J = swarm_information(truth, trusted, measured, gnss_cov, range_sigma, ins_cov)
+    """Per-drone bound (T, n, 3, 3): the 3x3 blocks of the inverse swarm information (see
+    `swarm_information` for the arguments)."""
+    J = swarm_information(truth, trusted, measured, gnss_cov, range_sigma, ins_cov, common_cov, symmetric)
     T, N, _ = J.shape
     n = N // 3
     C = _safe_inv(J).reshape(T, n, 3, n, 3)

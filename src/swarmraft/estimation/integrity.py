@@ -371,7 +371,10 @@ def assess(
         dj = np.einsum("tjab,tjb->tja", Pj, b).reshape(-1, n, n, 3)
         Cj = _blocks(Pj)  # (t, j, n, 3, 3)
         evj = _eigenvalues(Cj)
+        # unfixed without drone j: ill-conditioned, or its variance inflated a millionfold
+        # (no other measurement of it at all)
         ill = evj[..., 2] > p.max_condition * np.maximum(evj[..., 0], 1e-300)
+        ill |= evj[..., 2] > 1e6 * np.maximum(ev[:, None, :, 2], 1e-300)
         unverifiable[s] = (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
         var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
         var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)

@@ -131,7 +131,13 @@ class SweepConfig(_Strict):
     attack: AttackConfig = Field(default_factory=AttackConfig)
     gnss: GNSSConfig | None = Field(None, description="None: honest reports are exact")
     ranging: RangingConfig = Field(default_factory=lambda: RangingConfig(kind="exact"))
-    geometry: Literal["cube", "formation"] = Field("cube", description="uniform cube, or a grid formation")
+    geometry: Literal["cube", "formation", "flat", "line"] = Field(
+        "cube",
+        description="uniform cube, a grid formation, a flat layer (thickness m thick) or within "
+        "line_radius m of a line (both area_size across)",
+    )
+    thickness: float = Field(0.5, ge=0, description="flat layer: vertical spread, m")
+    line_radius: float = Field(1.0, ge=0, description="line: largest distance from the line, m")
     area_size: float = Field(100.0, gt=0, description="cube side, m (paper: 100 m)")
     spacing: float = Field(20.0, gt=0, description="formation spacing, m (docs/models.md: 10-30 m)")
     jitter: float = Field(2.0, ge=0, description="formation jitter per axis, m")

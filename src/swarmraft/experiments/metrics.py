@@ -6,6 +6,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from swarmraft.estimation.snapshot import STATUSES
+
 CELL_COLUMNS = (
     "n",
     "f",
@@ -29,14 +31,22 @@ CELL_COLUMNS = (
     "false_positive_rate",
     "identification_rate",
     "status_ok",
-    "status_insufficient",
+    "status_alarm",
     "status_unidentifiable",
+    "status_degenerate",
     "attacked_efficiency",
     "attacked_nees",
     "attacked_catastrophic",
+    "attacked_bound_excluded",
     "honest_efficiency",
     "honest_nees",
     "honest_catastrophic",
+    "honest_bound_excluded",
+    "misleading_rate",
+    "misleading_trials",
+    "ok_over_20m_pl",
+    "ok_over_100m",
+    "undetermined_rate",
 )
 
 
@@ -51,6 +61,17 @@ def _mean(x: np.ndarray) -> float:
     return float(v.mean()) if v.size else float("nan")
 
 
+def _quantile(x: np.ndarray, q: float) -> float:
+    """Quantile of the finite values (trials whose positions were all undetermined have none)."""
+    v = x[np.isfinite(x)]
+    return float(np.quantile(v, q)) if v.size else float("nan")
+
+
+def _share_over(x: np.ndarray, limit: float) -> float:
+    v = x[np.isfinite(x)]
+    return float(np.mean(v > limit)) if v.size else float("nan")
+
+
 def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) -> dict:
     """One row of cells.csv from one cell's per-trial columns."""
     rec = np.asarray(trials["recovered"], dtype=float)
@@ -63,28 +84,39 @@ def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) 
         "baseline_mean": _mean(trials["baseline"]),
         "baseline_sem": sem(trials["baseline"]),
         "recovered_mean": _mean(rec),
-        "recovered_median": float(np.median(rec)),
-        "recovered_p90": float(np.quantile(rec, 0.90)),
-        "recovered_p99": float(np.quantile(rec, 0.99)),
-        "frac_over_1m": float(np.mean(rec > 1.0)),
+        "recovered_median": _quantile(rec, 0.5),
+        "recovered_p90": _quantile(rec, 0.90),
+        "recovered_p99": _quantile(rec, 0.99),
+        "frac_over_1m": float(np.mean(rec[np.isfinite(rec)] > 1.0))
+        if np.isfinite(rec).any()
+        else float("nan"),
         "recovered_sem": sem(rec),
         "honest_baseline_mean": _mean(trials["honest_baseline"]),
         "honest_mean": _mean(trials["honest"]),
-        "honest_median": float(np.median(trials["honest"])),
+        "honest_median": _quantile(np.asarray(trials["honest"], float), 0.5),
         "all_mean": _mean(trials["all"]),
         "detection_rate": _mean(trials["detection_rate"]),
         "false_positive_rate": _mean(trials["false_positive_rate"]),
         "identification_rate": _mean(np.asarray(trials["identified"], dtype=float)),
     }
-    for s in ("ok", "insufficient", "unidentifiable"):
+    for s in STATUSES:
         row[f"status_{s}"] = float(np.mean(status == s))
     for g in ("attacked", "honest"):
-        # efficiency = sqrt(mean squared error / mean trace of the bound)
-        sq, bound = (
-            _mean(np.asarray(trials[f"{g}_sq"], float)),
-            _mean(np.asarray(trials[f"{g}_bound"], float)),
-        )
+        # efficiency = sqrt(mean squared error / mean trace of the bound), both over the same
+        # trials: those with a finite bound and an error (the others are counted)
+        sq_t, bound_t = np.asarray(trials[f"{g}_sq"], float), np.asarray(trials[f"{g}_bound"], float)
+        both = np.isfinite(sq_t) & np.isfinite(bound_t)
+        sq, bound = _mean(sq_t[both]), _mean(bound_t[both])
         row[f"{g}_efficiency"] = float(np.sqrt(sq / bound)) if bound > 0 else float("nan")
+        row[f"{g}_bound_excluded"] = int((~both).sum()) if np.isfinite(bound_t).any() else 0
         row[f"{g}_nees"] = _mean(np.asarray(trials[f"{g}_nees"], float))
         row[f"{g}_catastrophic"] = _mean(np.asarray(trials[f"{g}_catastrophic"], float))
+    ok = status == "ok"
+    mis = np.asarray(trials["misleading"], float) > 0
+    row["misleading_rate"] = float(mis[ok].mean()) if ok.any() else float("nan")
+    row["misleading_trials"] = int(mis.sum())
+    row["ok_over_20m_pl"] = int(np.asarray(trials["ok_over_20m_pl"], float).sum())
+    row["ok_over_100m"] = int(np.asarray(trials["ok_over_100m"], float).sum())
+    n = int(trials["n"][0])
+    row["undetermined_rate"] = float(np.asarray(trials["undetermined"], float).sum() / (n * rec.size))
     return row

@@ -11,16 +11,17 @@ from typing import Any
 
 import numpy as np
 
-from swarmraft.estimation import SnapshotBatch, verify_batch
+from swarmraft.estimation import SnapshotBatch, VerdictBatch, verify_batch
 from swarmraft.estimation.bounds import CHI2_3DOF_999, error_statistics, gnss_covariance, swarm_crb
 from swarmraft.experiments.config import SweepConfig
-from swarmraft.world import choose_attackers, formation, uniform_cube
+from swarmraft.world import choose_attackers, flat_layer, formation, near_line, uniform_cube
 
 TRIAL_COLUMNS = (
     *("n", "f", "trial", "baseline", "recovered", "honest_baseline", "honest", "all"),
     *("detection_rate", "false_positive_rate", "identified", "status"),
     *("attacked_sq", "attacked_bound", "attacked_nees", "attacked_catastrophic"),
     *("honest_sq", "honest_bound", "honest_nees", "honest_catastrophic"),
+    *("hpe", "hpl", "vpe", "vpl", "misleading", "ok_over_20m_pl", "ok_over_100m", "undetermined"),
 )
 
 
@@ -43,6 +44,10 @@ def draw(config: SweepConfig, rng: np.random.Generator, trials: int, n: int, f: 
     """Sample the world for T trials: truth, honest reports, ranges, then the attack."""
     if config.geometry == "cube":
         truth = uniform_cube(rng, trials, n, config.area_size)
+    elif config.geometry == "flat":
+        truth = flat_layer(rng, trials, n, config.area_size, config.thickness)
+    elif config.geometry == "line":
+        truth = near_line(rng, trials, n, config.area_size, config.line_radius)
     else:
         truth = formation(rng, trials, n, config.spacing, config.jitter)
     attackers = choose_attackers(rng, trials, n, f)
@@ -60,6 +65,9 @@ def snapshot_batch(config: SweepConfig, d: Draw) -> SnapshotBatch:
 
 
 def _masked_mean(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean over the masked drones whose value is defined (a drone whose position the
+    detector left undetermined, nan, is counted in ``undetermined`` instead)."""
+    mask = mask & np.isfinite(values)
     cnt = mask.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(cnt > 0, np.where(mask, values, 0.0).sum(axis=1) / cnt, np.nan)
@@ -75,8 +83,13 @@ def bound_metrics(config: SweepConfig, d: Draw, positions: np.ndarray) -> dict[s
     sigma = config.ranging.sigma_for_snapshot
     if config.gnss is None or not sigma:
         return {k: np.full(T, np.nan) for k in keys}
-    gh, gv = config.gnss.model().total_sigma
-    C = swarm_crb(d.truth, ~d.attackers, ~np.isnan(d.ranges), gnss_covariance(gh, gv), sigma)
+    g = config.gnss
+    common = gnss_covariance(g.common_h, g.common_v) if g.common_h or g.common_v else None
+    symmetric = config.ranging.symmetric
+    own = gnss_covariance(g.sigma_h, g.sigma_v)
+    C = swarm_crb(
+        d.truth, ~d.attackers, ~np.isnan(d.ranges), own, sigma, common_cov=common, symmetric=symmetric
+    )
     sq, nees = error_statistics(positions - d.truth, C)
     tr = np.trace(C, axis1=2, axis2=3)
     out = {}
@@ -86,6 +99,33 @@ def bound_metrics(config: SweepConfig, d: Draw, positions: np.ndarray) -> dict[s
         out[f"{g}_nees"] = _masked_mean(nees, m)
         out[f"{g}_catastrophic"] = _masked_mean((nees > CHI2_3DOF_999).astype(float), m)
     return out
+
+
+def integrity_metrics(d: Draw, v: VerdictBatch) -> dict[str, np.ndarray]:
+    """Per trial: the horizontal and vertical error and protection level of the drone closest
+    to (or furthest beyond) its protection level (max of hpe/hpl and vpe/vpl; nan where the
+    detector gives no protection level), and counts of drones in an ``ok`` verdict whose
+    error exceeds its protection level (``misleading``: hpe > hpl or vpe > vpl), exceeds
+    max(20 m, the 3-D protection level) or 100 m, and of drones left undetermined."""
+    err = v.positions - d.truth
+    hpe, vpe = np.hypot(err[..., 0], err[..., 1]), np.abs(err[..., 2])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.fmax(hpe / v.hpl, vpe / v.vpl)
+    pick = np.argmax(np.nan_to_num(ratio, nan=-1.0, posinf=-1.0), axis=1)
+    t = np.arange(len(pick))
+    ok = (v.status == "ok")[:, None] & np.isfinite(hpe)
+    e3 = np.linalg.norm(err, axis=2)
+    pl3 = np.hypot(v.hpl, v.vpl)
+    return {
+        "hpe": hpe[t, pick],
+        "hpl": v.hpl[t, pick],
+        "vpe": vpe[t, pick],
+        "vpl": v.vpl[t, pick],
+        "misleading": (ok & ((hpe > v.hpl) | (vpe > v.vpl))).sum(axis=1),
+        "ok_over_20m_pl": (ok & (e3 > np.fmax(20.0, pl3))).sum(axis=1),
+        "ok_over_100m": (ok & (e3 > 100.0)).sum(axis=1),
+        "undetermined": (~np.isfinite(e3)).sum(axis=1),
+    }
 
 
 def score(d: Draw, positions: np.ndarray, faulty: np.ndarray) -> dict[str, np.ndarray]:
@@ -100,7 +140,7 @@ def score(d: Draw, positions: np.ndarray, faulty: np.ndarray) -> dict[str, np.nd
         "recovered": _masked_mean(ver_err, att),
         "honest_baseline": _masked_mean(rep_err, hon),
         "honest": _masked_mean(ver_err, hon),
-        "all": ver_err.mean(axis=1),
+        "all": _masked_mean(ver_err, np.ones_like(att)),
         "detection_rate": _masked_mean(faulty.astype(float), att),
         "false_positive_rate": _masked_mean(faulty.astype(float), hon),
         "identified": (faulty == att).all(axis=1),
@@ -115,7 +155,7 @@ def run_chunk(
     rng = np.random.default_rng(chunk_seed(config.seed, n, f, chunk))
     d = draw(config, rng, trials, n, f)
     v = verify_batch(snapshot_batch(config, d), config.detector, **params)
-    out = score(d, v.positions, v.faulty) | bound_metrics(config, d, v.positions)
+    out = score(d, v.positions, v.faulty) | bound_metrics(config, d, v.positions) | integrity_metrics(d, v)
     first = chunk * config.chunk_size
     out.update(
         n=np.full(trials, n),

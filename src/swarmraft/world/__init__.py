@@ -8,7 +8,7 @@ from swarmraft.world.attacks import (
     RigidCollusion,
     choose_attackers,
 )
-from swarmraft.world.geometry import formation, true_distances, uniform_cube
+from swarmraft.world.geometry import flat_layer, formation, near_line, true_distances, uniform_cube
 from swarmraft.world.gnss import GaussMarkov, GNSSModel
 from swarmraft.world.ranging import ExactRanging, RSSIRanging, UWBRanging
 
@@ -24,7 +24,9 @@ __all__ = [
     "RigidCollusion",
     "UWBRanging",
     "choose_attackers",
+    "flat_layer",
     "formation",
+    "near_line",
     "true_distances",
     "uniform_cube",
 ]

@@ -16,6 +16,30 @@ def uniform_cube(rng: np.random.Generator, trials: int, n: int, size: float = 10
     return rng.uniform(0.0, size, size=(trials, n, 3))
 
 
+def flat_layer(
+    rng: np.random.Generator, trials: int, n: int, size: float = 100.0, thickness: float = 0.5
+) -> np.ndarray:
+    """n drones uniform in a square of side ``size`` and a layer ``thickness`` m thick: the
+    anchors of any drone are near-coplanar, so ranges leave a mirror image across the layer."""
+    if n < 1 or trials < 1 or not size > 0 or thickness < 0:
+        raise ValueError("flat_layer: need n >= 1, trials >= 1, size > 0, thickness >= 0")
+    xy = rng.uniform(0.0, size, size=(trials, n, 2))
+    return np.concatenate([xy, rng.uniform(0.0, thickness, size=(trials, n, 1))], axis=2)
+
+
+def near_line(
+    rng: np.random.Generator, trials: int, n: int, length: float = 100.0, radius: float = 1.0
+) -> np.ndarray:
+    """n drones along a line of ``length`` m, each within ``radius`` m of it (uniform in the
+    disc across the line): near-collinear anchors, which leave a rotation about the line."""
+    if n < 1 or trials < 1 or not length > 0 or radius < 0:
+        raise ValueError("near_line: need n >= 1, trials >= 1, length > 0, radius >= 0")
+    along = rng.uniform(0.0, length, size=(trials, n))
+    r = radius * np.sqrt(rng.uniform(size=(trials, n)))
+    phi = rng.uniform(0.0, 2 * np.pi, size=(trials, n))
+    return np.stack([along, r * np.cos(phi), 50.0 + r * np.sin(phi)], axis=2)
+
+
 def formation(
     rng: np.random.Generator,
     trials: int,

@@ -137,8 +137,14 @@ def test_step_record_round_trip_and_dedup():
         "ok",
         "joint",
         "abc",
+        np.array([1.5, np.inf, 2.5, np.nan]),
+        np.array([3.5, np.inf, 4.5, np.nan]),
     )
     assert StepRecord.decode(rec.encode()).encode() == rec.encode()
+    back = StepRecord.decode(rec.encode())
+    np.testing.assert_array_equal(back.hpl, rec.hpl)
+    np.testing.assert_array_equal(back.vpl, rec.vpl)
+    assert back.status == "ok" and back.digest == "abc"
     assert d.apply(rec.encode()) is not None
     again = StepRecord(3, 3, np.zeros((4, 3)), np.zeros(4, bool), np.zeros(4, bool), "ok", "joint", "def")
     assert d.apply(again.encode()) is None  # a second record for step 3 is ignored

@@ -182,3 +182,20 @@ def test_the_printed_summary_warns_of_a_spoofed_majority(tmp_path):
     res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o")])
     assert res.exit_code == 0, res.output
     assert "warning: up to 3 of 5 drones spoofed at once" in " ".join(res.stdout.split())
+
+
+def test_mission_records_carry_protection_levels_that_bound_the_error(tmp_path):
+    from swarmraft.experiments.mission import load_scenario, misleading_information, run_and_write
+
+    sc = load_scenario("leader-crash-under-attack", duration_s=25.0)
+    result = run_and_write(sc, tmp_path)
+    log = result.log
+    ok = log.committed & (log.status == "ok")
+    assert ok.sum() > 100
+    levels = log.hpl[ok]
+    assert np.isfinite(levels).mean() > 0.95  # nan: drones re-estimated after the detector
+    assert (levels[np.isfinite(levels)] > 0).all()
+    assert not misleading_information(log).any()
+    assert result.summary["integrity"]["misleading_drone_steps"] == 0
+    header = (tmp_path / "steps.csv").read_text().splitlines()[0].split(",")
+    assert {"hpl", "vpl", "misleading"} <= set(header)

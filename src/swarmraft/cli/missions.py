@@ -94,6 +94,19 @@ def print_mission_summary(summary: dict) -> None:
         f"(longest run {s['longest_skipped_run']}); records identical on all nodes: "
         f"{'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}"
     )
+    ig = s["integrity"]
+    statuses = ", ".join(f"{k} {v}" for k, v in ig["status_counts"].items())
+    mis = ig["misleading_drone_steps"]
+    console.print(
+        f"  record statuses: {statuses}; protection levels (median, ok records): "
+        f"horizontal {_m(ig['median_hpl_m'])}, vertical {_m(ig['median_vpl_m'])}; "
+        + (
+            f"[red]misleading information (error above its level, status ok): {mis} drone-steps[/]"
+            f" at {', '.join(f'{t:g} s' for t in ig['misleading_times_s'])}"
+            if mis
+            else "misleading information (error above its level, status ok): none"
+        )
+    )
     console.print(
         f"  honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
         f"SwarmRaft {_m(s['honest_error_swarmraft_m'])}, "

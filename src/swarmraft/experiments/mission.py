@@ -44,6 +44,9 @@ STEP_COLUMNS = (
     "error_ins_aligned",
     "error_swarmraft",
     "snapshot_bound",
+    "hpl",
+    "vpl",
+    "misleading",
     "leader",
     "term",
     "latency_ms",
@@ -344,10 +347,37 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "raft_minimum_per_step": per_step_min,
         "reports_per_step": round(float(log.report_messages.mean()), 2),
         "events": [f"{t:.1f} s: {e}" for t, e in log.events],
+        "integrity": integrity_summary(log),
+    }
+
+
+def misleading_information(log: MissionLog) -> np.ndarray:
+    """(S, n): a committed record with status ok whose position of the drone is further from
+    the truth than its protection level (horizontally or vertically)."""
+    e = log.verified - log.truth
+    with np.errstate(invalid="ignore"):
+        over = (np.hypot(e[..., 0], e[..., 1]) > log.hpl) | (np.abs(e[..., 2]) > log.vpl)
+    return over & (log.status == "ok")[:, None] & log.committed[:, None]
+
+
+def integrity_summary(log: MissionLog) -> dict[str, Any]:
+    """Protection levels over the committed steps: how often the records were ok, the median
+    levels, and the misleading information (error above the level in an ok record)."""
+    mis = misleading_information(log)
+    ok = log.committed & (log.status == "ok")
+    finite = np.isfinite(log.hpl) & ok[:, None]
+    return {
+        "ok_steps": int(ok.sum()),
+        "status_counts": {s: int((log.status == s).sum()) for s in sorted(set(log.status.tolist()))},
+        "median_hpl_m": round(float(np.median(log.hpl[finite])), 3) if finite.any() else None,
+        "median_vpl_m": round(float(np.median(log.vpl[finite])), 3) if finite.any() else None,
+        "misleading_drone_steps": int(mis.sum()),
+        "misleading_times_s": [round(float(t), 1) for t in log.t[mis.any(axis=1)][:20]],
     }
 
 
 def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    misleading = misleading_information(log)
     wrong = wrong_partition(log)
     rows = []
     for k in range(len(log.t)):
@@ -379,6 +409,9 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
                     "error_ins_aligned": errors["ins_aligned"][k, i],
                     "error_swarmraft": errors["swarmraft"][k, i],
                     "snapshot_bound": errors["snapshot_bound"][k, i],
+                    "hpl": log.hpl[k, i],
+                    "vpl": log.vpl[k, i],
+                    "misleading": misleading[k, i],
                     "leader": log.leader[k],
                     "term": log.term[k],
                     "latency_ms": log.latency_ms[k],

@@ -146,6 +146,8 @@ class SwarmDrone:
         faulty = np.zeros(n, dtype=bool)
         positions[idx] = v.positions[0]
         faulty[idx] = v.faulty[0]
+        hpl, vpl = np.full(n, np.nan), np.full(n, np.nan)
+        hpl[idx], vpl[idx] = v.hpl[0], v.vpl[0]
         status = str(v.status[0])
         stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
         positions[stuck] = prior[stuck]
@@ -190,6 +192,9 @@ class SwarmDrone:
                 positions[again] = est[again]
                 found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
                 positions[found] = est[found]
+                # re-estimated here, not by the detector: no protection level for them
+                hpl[again | found] = np.nan
+                vpl[again | found] = np.nan
                 if st[0] != "ok" and status == "ok":
                     status = str(st[0])
         return StepRecord(
@@ -201,4 +206,6 @@ class SwarmDrone:
             status,
             c.detector,
             reports_digest(list(reports.values())),
+            hpl,
+            vpl,
         )

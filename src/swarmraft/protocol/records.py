@@ -61,9 +61,11 @@ class Report:
 
 @dataclass(frozen=True)
 class StepRecord:
-    """The replicated entry of one step: verified positions (n, 3) (nan = missing), flags,
-    which drones were missing (no report), the verdict status, the detector, the leader's
-    term, and the digest of the reports it was computed from."""
+    """The replicated entry of one step: verified positions (n, 3) (nan = missing or not
+    determined), flags, which drones were missing (no report), the verdict status, the
+    detector, the leader's term, the digest of the reports it was computed from, and each
+    drone's horizontal and vertical protection level hpl, vpl (n,) in m (nan where the
+    detector gives none, inf where the position is not protected)."""
 
     step: int
     term: int
@@ -73,15 +75,22 @@ class StepRecord:
     status: str
     detector: str
     digest: str
+    hpl: np.ndarray | None = None
+    vpl: np.ndarray | None = None
 
     def encode(self) -> bytes:
         n = len(self.faulty)
         text = json.dumps([self.status, self.detector, self.digest]).encode()
+        nan = np.full(n, np.nan)
+        hpl = nan if self.hpl is None else self.hpl
+        vpl = nan if self.vpl is None else self.vpl
         return (
             _RECORD_HEAD.pack(self.step, self.term, n)
             + np.asarray(self.positions, "<f8").tobytes()
             + np.packbits(self.faulty).tobytes()
             + np.packbits(self.missing).tobytes()
+            + np.asarray(hpl, "<f8").tobytes()
+            + np.asarray(vpl, "<f8").tobytes()
             + text
         )
 
@@ -94,8 +103,11 @@ class StepRecord:
         nb = (n + 7) // 8
         faulty = np.unpackbits(np.frombuffer(data, np.uint8, count=nb, offset=off))[:n].astype(bool)
         missing = np.unpackbits(np.frombuffer(data, np.uint8, count=nb, offset=off + nb))[:n].astype(bool)
-        status, detector, digest = json.loads(data[off + 2 * nb :])
-        return cls(step, term, pos, faulty, missing, status, detector, digest)
+        off += 2 * nb
+        hpl = np.frombuffer(data, "<f8", count=n, offset=off).copy()
+        vpl = np.frombuffer(data, "<f8", count=n, offset=off + 8 * n).copy()
+        status, detector, digest = json.loads(data[off + 16 * n :])
+        return cls(step, term, pos, faulty, missing, status, detector, digest, hpl, vpl)
 
 
 def reports_digest(reports: list[Report]) -> str:

@@ -39,6 +39,8 @@ class MissionLog:
     outage: np.ndarray  # (S, n) bool
     alive: np.ndarray  # (S, n) bool
     verified: np.ndarray  # (S, n, 3) committed positions, nan where missing or skipped
+    hpl: np.ndarray  # (S, n) committed horizontal protection levels, m (nan: none)
+    vpl: np.ndarray  # (S, n) committed vertical protection levels, m
     faulty: np.ndarray  # (S, n) bool
     missing: np.ndarray  # (S, n) bool
     committed: np.ndarray  # (S,) bool: the step has a record
@@ -166,6 +168,8 @@ class Mission:
             outage=np.zeros((S, n), bool),
             alive=np.zeros((S, n), bool),
             verified=nan3.copy(),
+            hpl=np.full((S, n), np.nan),
+            vpl=np.full((S, n), np.nan),
             faulty=np.zeros((S, n), bool),
             missing=np.zeros((S, n), bool),
             committed=np.zeros(S, bool),
@@ -380,6 +384,8 @@ class Mission:
                 continue
             log.committed[k] = True
             log.verified[k] = rec.positions
+            if rec.hpl is not None:
+                log.hpl[k], log.vpl[k] = rec.hpl, rec.vpl
             log.faulty[k] = rec.faulty
             log.missing[k] = rec.missing
             log.status[k] = rec.status

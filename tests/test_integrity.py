@@ -223,3 +223,15 @@ def test_detector_parameters_validated_against_the_swarm():
     with pytest.raises(ValueError, match="verify: expected a Snapshot"):
         verify(np.zeros((3, 3)))
     assert IntegrityParams().integrity_risk == 1e-3
+
+
+def test_gnc_weights_separate_spoofed_from_honest_reports():
+    """The GNC stage of `joint`: with the inlier bound c_gnss = 4 (whitened), an honest report
+    (whitened residual^2 ~ chi-square 3 dof, median 2.37) keeps about (16 / 18.4)^2 = 0.76 of
+    its weight (c = 2 would leave 0.39, c = 8 0.93), and reports spoofed by 30 m or more lose
+    almost all of it."""
+    cfg = build_config("realistic", n=(13,), f=(4,), trials=200, attack={"low": 30.0})
+    d = draw(cfg, np.random.default_rng(4), 200, 13, 4)
+    w = verify_batch(snapshot_batch(cfg, d), "joint").diagnostics["gnss_weight"]
+    assert 0.6 < np.median(w[~d.attackers]) < 0.85
+    assert np.quantile(w[d.attackers], 0.95) < 0.05

@@ -282,6 +282,23 @@ def mirror_ambiguous(
     return ambiguous & ~trusted
 
 
+def too_few_without_one(
+    ranges: np.ndarray, trusted: np.ndarray, prior: np.ndarray | None = None, prior_sigma: float | None = None
+) -> np.ndarray:
+    """Drones (T, n) whose position one faulty trusted drone could move unseen: a trusted
+    drone with fewer than 4 other trusted drones ranging with it (without its own report,
+    3 ranges leave a circle of positions its fault can slide along), or an untrusted one that
+    would keep fewer than 4 anchors (3 with a prior) if one of them were left out. Detecting a
+    fault among the trusted needs that redundancy; without it no protection level exists."""
+    n = trusted.shape[1]
+    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+    cnt = anchors.sum(axis=2)
+    need = np.full(trusted.shape, 4)
+    if prior is not None and prior_sigma:
+        need = np.where(np.isfinite(prior).all(axis=2) & ~trusted, 3, 4)
+    return np.where(trusted, cnt < 4, (cnt - 1 < need) & (cnt > 0))
+
+
 def _blocks(P: np.ndarray) -> np.ndarray:
     """3x3 diagonal blocks (..., n, 3, 3) of matrices (..., 3n, 3n)."""
     *lead, N, _ = P.shape
@@ -344,7 +361,7 @@ def assess(
     sigma = np.full((T, n, 3), np.inf)
     threshold = float(chi2_quantile(1 - p.p_fa, 1))
     undetermined = est.ambiguous | mirror_ambiguous(x, ranges, trusted, noise, threshold, prior, prior_sigma)
-    unverifiable = np.zeros((T, n), dtype=bool)
+    unverifiable = too_few_without_one(ranges, trusted, prior, prior_sigma) & ~undetermined
     n_h = np.maximum(trusted.sum(axis=1), 1)
     k_fa = -ndtri(p.p_fa / (2 * 3 * n * n_h))  # (T,)
     k_md = -ndtri(p.integrity_risk / (2 * 3 * (n_h + 1)))
@@ -375,7 +392,7 @@ def assess(
         # (no other measurement of it at all)
         ill = evj[..., 2] > p.max_condition * np.maximum(evj[..., 0], 1e-300)
         ill |= evj[..., 2] > 1e6 * np.maximum(ev[:, None, :, 2], 1e-300)
-        unverifiable[s] = (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
+        unverifiable[s] |= (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
         var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
         var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
         thr = k_fa[s, None, None, None] * np.sqrt(var_ss)

@@ -36,6 +36,15 @@ def residuals(
 
 
 @njit(cache=True)
+def _separation(xt, i, j):  # pragma: no cover - compiled
+    """Distance between drones i and j at positions xt, and the vector x_i - x_j."""
+    d0 = xt[i, 0] - xt[j, 0]
+    d1 = xt[i, 1] - xt[j, 1]
+    d2 = xt[i, 2] - xt[j, 2]
+    return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), d0, d1, d2
+
+
+@njit(cache=True)
 def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - compiled
     """Weighted sum of squared whitened residuals of one problem at positions xt (n, 3)."""
     n = xt.shape[0]
@@ -59,10 +68,7 @@ def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - 
             w = rw[i, j]
             if i == j or w <= 0 or np.isnan(d):
                 continue
-            d0 = xt[i, 0] - xt[j, 0]
-            d1 = xt[i, 1] - xt[j, 1]
-            d2 = xt[i, 2] - xt[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - d
+            r = _separation(xt, i, j)[0] - d
             c += w * inv_s2 * r * r
     return c
 
@@ -90,10 +96,7 @@ def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # p
             w = rw[i, j]
             if i == j or w <= 0 or np.isnan(d):
                 continue
-            d0 = xt[i, 0] - xt[j, 0]
-            d1 = xt[i, 1] - xt[j, 1]
-            d2 = xt[i, 2] - xt[j, 2]
-            dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            dist, d0, d1, d2 = _separation(xt, i, j)
             if dist == 0:
                 continue
             u = (d0 / dist, d1 / dist, d2 / dist)

@@ -61,10 +61,28 @@ def test_recovery_3d(results, tmp_path):
 
 
 def test_check_compares_with_published(results):
+    import json
+
+    from swarmraft.experiments.published import PUBLISHED
+    from swarmraft.experiments.tables import read_table
+
     out, _ = results
     r = CliRunner().invoke(main, ["check", str(out)])
     assert "published" in r.output and "3 (1)" in r.output
-    assert r.exit_code in (0, 1)
+    j = CliRunner().invoke(main, ["check", str(out), "--json"])
+    report = json.loads(j.stdout)
+    cells = read_table(out / "cells.csv")
+    for row, n, mean, sem in zip(
+        report["cells"], cells["n"], cells["recovered_mean"], cells["recovered_sem"], strict=True
+    ):
+        assert row["n"] == n
+        assert row["z"] == pytest.approx((mean - PUBLISHED[int(n)][1]) / sem)
+    crit = report["criteria"]
+    for row in report["cells"]:
+        gap = abs(row["baseline"] - row["published_baseline"])
+        assert row["ok"] == (abs(row["z"]) <= crit["max_abs_z"] and gap <= crit["max_baseline_gap_m"])
+    assert report["pass"] == all(row["ok"] for row in report["cells"])
+    assert r.exit_code == (0 if report["pass"] else 1)  # the exit status follows the numbers
 
 
 @pytest.mark.parametrize(

@@ -140,7 +140,16 @@ def test_run_json_keeps_every_run(ref):
 def test_cell_provenance_names_its_seed_and_config(ref):
     meta = json.loads((ref / "cells" / "n5_f2.json").read_text())
     run = json.loads((ref / "run.json").read_text())
-    assert meta == {"config_sha256": run["config_sha256"], "f": 2, "n": 5, "seed": 2025, "trials": 50}
+    from swarmraft.experiments.sweep import code_hash
+
+    assert meta == {
+        "config_sha256": run["config_sha256"],
+        "code_sha256": code_hash(),
+        "f": 2,
+        "n": 5,
+        "seed": 2025,
+        "trials": 50,
+    }
 
 
 def test_run_json_with_a_bad_config_is_named(ref):
@@ -150,3 +159,17 @@ def test_run_json_with_a_bad_config_is_named(ref):
     fails_cleanly(
         ["figure", "recovery", "ref"], "ref/run.json: config.trials: Input should be greater than", ref.parent
     )
+
+
+def test_resume_with_other_code_is_refused(ref, monkeypatch):
+    """Cells made by another version of the code are not mixed with this version's."""
+    import json
+
+    from swarmraft.experiments import sweep as sweep_module
+
+    meta = sorted((ref / "cells").glob("*.json"))[0]
+    data = json.loads(meta.read_text())
+    assert data["code_sha256"] == sweep_module.code_hash()
+    data["code_sha256"] = "0" * 64
+    meta.write_text(json.dumps(data))
+    fails_cleanly(resume(), "was made by other code (source 000000000000", ref.parent)

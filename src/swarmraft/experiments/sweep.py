@@ -5,13 +5,15 @@ Output folder layout:
 - ``run.json``: config, seed, package version, detector parameters and calibration per n, and
   ``runs``: one entry per run that computed cells (seed, config hash, executor, start, wall time);
 - ``cells/n{n}_f{f}.csv``: one cell's trials, written when the cell completes (resume skips
-  cells whose file exists), and ``cells/n{n}_f{f}.json``: the seed and config hash it was made
-  with, so a resume with another seed or config is refused even without run.json;
+  cells whose file exists), and ``cells/n{n}_f{f}.json``: the seed, config hash and source
+  hash it was made with, so a resume with another seed, config or code is refused even
+  without run.json;
 - ``trials.csv``: every trial, one row each; ``cells.csv``: one row per (n, f).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import platform
@@ -71,6 +73,18 @@ def config_hash(config: SweepConfig) -> str:
     """sha256 of the config as canonical JSON (seed included): what made a cell."""
     text = json.dumps(config.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def code_hash() -> str:
+    """sha256 of the package's source files: which code made a cell (a resume with other
+    code would mix two versions' numbers in one table)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 def provenance_path(out: Path, n: int, f: int) -> Path:
@@ -162,6 +176,12 @@ def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:
             raise ConfigError(
                 f"{meta_path}: not valid JSON ({exc}); remove the cell or use another --out"
             ) from None
+        if meta.get("code_sha256", code_hash()) != code_hash():
+            raise ConfigError(
+                f"--out {out}: {csv_path.name} was made by other code (source "
+                f"{str(meta.get('code_sha256'))[:12]}, now {code_hash()[:12]}); its numbers would "
+                "mix with this version's: use another --out, or remove the cells to recompute"
+            )
         if meta.get("config_sha256") != want:
             raise ConfigError(
                 f"--out {out}: {csv_path.name} was made with seed {meta.get('seed')} and config "
@@ -235,7 +255,7 @@ def run_sweep(
     tick = progress(len(tasks) and config.trials * len(todo), len(todo)) if progress else None
     pending: dict[tuple[int, int], dict[int, dict]] = {c: {} for c in todo}
     executor_name = "none (all cells reused)"
-    meta = {"seed": config.seed, "config_sha256": config_hash(config)}
+    meta = {"seed": config.seed, "config_sha256": config_hash(config), "code_sha256": code_hash()}
     if tasks:
         warm_up()
         with make_executor(workers, scheduler) as ex:

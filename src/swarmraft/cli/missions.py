@@ -224,7 +224,10 @@ def mission(scenario_file, out, seed, detector, as_json) -> None:
         sc = with_detector(sc, detector)
     out = out or Path("results") / sc.name
     say = err_console if as_json else console
-    say.print(f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}")
+    say.print(
+        f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}",
+        soft_wrap=True,
+    )
     prog, start = progress_bar("mission", "steps")
     with prog:
         result = run_and_write(sc, out, start(sc.steps + 1, 0))
@@ -233,4 +236,4 @@ def mission(scenario_file, out, seed, detector, as_json) -> None:
     else:
         print_mission_summary(result.summary)
     for p in [out / "steps.csv", out / "summary.json", out / "scenario.json", *mission_figures(result, out)]:
-        say.print(f"wrote {p}")
+        say.print(f"wrote {p}", soft_wrap=True)

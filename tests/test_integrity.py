@@ -235,3 +235,19 @@ def test_gnc_weights_separate_spoofed_from_honest_reports():
     w = verify_batch(snapshot_batch(cfg, d), "joint").diagnostics["gnss_weight"]
     assert 0.6 < np.median(w[~d.attackers]) < 0.85
     assert np.quantile(w[d.attackers], 0.95) < 0.05
+
+
+@pytest.mark.parametrize(
+    "det,param", [("paper", "tau"), ("joint", "p_fa"), ("clique", "k"), ("fde", "min_sigma")]
+)
+def test_non_finite_detector_parameters_are_refused(det, param):
+    from swarmraft.estimation import detector_params
+
+    with pytest.raises(ValueError, match=f"{det}.{param}: must be finite|{det}.{param}: "):
+        detector_params(det, **{param: float("inf")})
+    with (
+        pytest.raises(ValueError, match=f"{det}.gnss_sigma: must be finite")
+        if det != "paper"
+        else pytest.raises(ValueError)
+    ):
+        detector_params(det, gnss_sigma=(1.5, float("nan")))

@@ -8,6 +8,7 @@ its parameters (unknown or out-of-range parameters are a one-line ``ValueError``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -70,9 +71,14 @@ def detector_params(name: str, **params: Any) -> BaseModel:
     """Validate a detector's parameters; a bad one is a one-line ValueError naming it."""
     det = get_detector(name)
     try:
-        return det.params(**params)
+        model = det.params(**params)
     except ValidationError as exc:
         raise ValueError(one_line(exc, name)) from None
+    for key, value in model.model_dump().items():
+        values = value if isinstance(value, tuple | list) else (value,)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            raise ValueError(f"{name}.{key}: must be finite, got {value}")
+    return model
 
 
 def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:

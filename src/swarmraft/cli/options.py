@@ -104,6 +104,28 @@ def int_list(text: str | None, name: str) -> tuple[int, ...] | None:
     return tuple(out)
 
 
+def _at_least(
+    values: tuple[int, ...] | None, minimum: int, what: str, name: str, why: str = ""
+) -> tuple[int, ...] | None:
+    """``values`` if each is at least ``minimum``; else a BadParameter naming the option and
+    the values below it (the config's rule, checked here so the error names the option)."""
+    low = sorted({v for v in values or () if v < minimum})
+    if low:
+        got = ", ".join(str(v) for v in low)
+        raise click.BadParameter(f"every {what} must be >= {minimum}{why}, got {got}", param_hint=name)
+    return values
+
+
+def swarm_sizes(text: str | None, name: str = "--n") -> tuple[int, ...] | None:
+    """Swarm sizes from an integer list, each 3 or more (one attacker needs 3 drones)."""
+    return _at_least(int_list(text, name), 3, "swarm size", name, " (one attacker needs 3 drones)")
+
+
+def attacker_counts(text: str | None, name: str = "--f") -> tuple[int, ...] | None:
+    """Attacker counts from an integer list, each 1 or more."""
+    return _at_least(int_list(text, name), 1, "attacker count", name)
+
+
 def name_list(text: str, name: str, known: list[str], noun: str) -> list[str]:
     """'paper,clique' -> names, each one of ``known`` (each a ``noun``); an empty list is an
     error."""
@@ -141,8 +163,8 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
         settings = read_toml(config_file, "--config")
         preset = settings.pop("preset", preset)
     overrides = {
-        "n": int_list(n_text, "--n"),
-        "f": int_list(f_text, "--f"),
+        "n": swarm_sizes(n_text),
+        "f": attacker_counts(f_text),
         "diagonal": diagonal or None,
         "trials": trials,
         "seed": seed,

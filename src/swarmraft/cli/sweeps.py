@@ -17,9 +17,9 @@ from swarmraft.cli.options import (
     WORKERS,
     ImageFile,
     OutFolder,
-    int_list,
     key_values,
     name_list,
+    swarm_sizes,
     sweep_config,
 )
 from swarmraft.cli.tables import (
@@ -377,7 +377,7 @@ def calibrate(preset, n_text, trials, seed) -> None:
     from swarmraft.experiments import build_config
     from swarmraft.experiments.calibration import calibrate_cell
 
-    ns = int_list(n_text, "--n")
+    ns = swarm_sizes(n_text)
     config = build_config(preset, n=ns, seed=seed, calibration_trials=trials)
     rows = [(n, calibrate_cell(config, n)) for n in ns]
     print_table(calibration_table(rows, f"calibration, preset {preset}, {trials} honest snapshots"))

@@ -173,3 +173,101 @@ def test_resume_with_other_code_is_refused(ref, monkeypatch):
     data["code_sha256"] = "0" * 64
     meta.write_text(json.dumps(data))
     fails_cleanly(resume(), "was made by other code (source 000000000000", ref.parent)
+
+
+def _set(table, row: int, column: str, value: str) -> None:
+    """Write ``value`` into ``column`` of data row ``row`` (0 = the line under the header)."""
+    header, *rows = table.read_text().splitlines(keepends=True)
+    values = rows[row].rstrip("\n").split(",")
+    values[header.rstrip("\n").split(",").index(column)] = value
+    rows[row] = ",".join(values) + "\n"
+    table.write_text("".join([header, *rows]))
+
+
+@pytest.mark.parametrize("command", [["check"], ["figure", "scaling"]])
+def test_cells_csv_missing_a_cell_of_the_config(ref, command):
+    table = ref / "cells.csv"
+    table.write_text("".join(table.read_text().splitlines(keepends=True)[:2]))
+    fails_cleanly(
+        [*command, "ref"],
+        "ref/cells.csv: cells (3, 1) where run.json's config lists (3, 1), (5, 2)",
+        ref.parent,
+    )
+
+
+def test_cells_csv_with_a_cell_the_config_does_not_list(ref):
+    _set(ref / "cells.csv", 1, "n", "7")
+    fails_cleanly(
+        ["figure", "scaling", "ref"],
+        "ref/cells.csv: cells (3, 1), (7, 2) where run.json's config lists (3, 1), (5, 2)",
+        ref.parent,
+    )
+
+
+def test_trials_csv_with_a_cell_the_config_does_not_list(ref):
+    table = ref / "trials.csv"
+    header, *rows = table.read_text().splitlines(keepends=True)
+    n_col = header.split(",").index("n")
+    rows = [",".join("9" if i == n_col else v for i, v in enumerate(r.split(","))) for r in rows]
+    table.write_text("".join([header, *rows]))
+    fails_cleanly(
+        ["figure", "distribution", "ref"],
+        "ref/trials.csv: cells (9, 1), (9, 2) where run.json's config lists (3, 1), (5, 2)",
+        ref.parent,
+    )
+
+
+@pytest.mark.parametrize("command", [["check"], ["figure", "scaling"]])
+def test_negative_standard_error_is_named(ref, command):
+    _set(ref / "cells.csv", 1, "recovered_sem", "-0.25")
+    line = fails_cleanly(
+        [*command, "ref"], "ref/cells.csv, line 3, column recovered_sem: -0.25 is negative", ref.parent
+    )
+    assert "standard error" in line
+
+
+def test_negative_trial_count_is_named(ref):
+    _set(ref / "cells.csv", 0, "trials", "-50")
+    fails_cleanly(["check", "ref"], "ref/cells.csv, line 2, column trials: -50 is negative", ref.parent)
+
+
+def test_trial_count_other_than_the_configs_is_named(ref):
+    _set(ref / "cells.csv", 0, "trials", "40")
+    fails_cleanly(
+        ["check", "ref"],
+        "ref/cells.csv, line 2, column trials: 40 where run.json's config has 50",
+        ref.parent,
+    )
+
+
+@pytest.mark.parametrize(
+    "column,value,needle",
+    [
+        ("baseline_mean", "nan", "column baseline_mean: nan where a finite number is required"),
+        ("identification_rate", "inf", "column identification_rate: inf where a finite number is required"),
+        ("recovered_mean", "-inf", "column recovered_mean: -inf where a finite number or nan is expected"),
+        ("status_ok", "1.5", "column status_ok: 1.5 is a share above 1"),
+    ],
+)
+def test_impossible_numbers_in_cells_csv_are_named(ref, column, value, needle):
+    _set(ref / "cells.csv", 0, column, value)
+    fails_cleanly(["figure", "scaling", "ref"], f"ref/cells.csv, line 2, {needle}", ref.parent)
+
+
+def test_unknown_preset_in_cells_csv_is_named(ref):
+    _set(ref / "cells.csv", 1, "preset", "bogus")
+    line = fails_cleanly(
+        ["figure", "scaling", "ref"],
+        "ref/cells.csv, line 3, column preset: unknown preset 'bogus'",
+        ref.parent,
+    )
+    assert "known: reference, realistic" in line
+
+
+def test_cells_csv_of_another_detector_than_run_json_is_named(ref):
+    _set(ref / "cells.csv", 0, "detector", "joint")
+    fails_cleanly(
+        ["check", "ref"],
+        "ref/cells.csv, line 2, column detector: 'joint' where run.json's config has 'paper'",
+        ref.parent,
+    )

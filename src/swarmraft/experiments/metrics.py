@@ -49,6 +49,48 @@ CELL_COLUMNS = (
     "undetermined_rate",
 )
 
+# What a reader of cells.csv may rely on (`sweep.check_cells`): every number is >= 0; these
+# are defined in every cell (f >= 1 attacked and n - f >= 2 honest drones, at least one
+# trial), the others may be nan (a standard error of one trial, a bound the data lack) ...
+CELL_FINITE = (
+    "n",
+    "f",
+    "trials",
+    "baseline_mean",
+    "honest_baseline_mean",
+    "detection_rate",
+    "false_positive_rate",
+    "identification_rate",
+    *(f"status_{s}" for s in STATUSES),
+    "attacked_bound_excluded",
+    "honest_bound_excluded",
+    "misleading_trials",
+    "ok_over_20m_pl",
+    "ok_over_100m",
+    "undetermined_rate",
+)
+# ... these are shares, at most 1 ...
+CELL_SHARES = (
+    "frac_over_1m",
+    "detection_rate",
+    "false_positive_rate",
+    "identification_rate",
+    *(f"status_{s}" for s in STATUSES),
+    "attacked_catastrophic",
+    "honest_catastrophic",
+    "misleading_rate",
+    "undetermined_rate",
+)
+# ... and these are counts (of trials or drones).
+CELL_COUNTS = (
+    "trials",
+    "attacked_bound_excluded",
+    "honest_bound_excluded",
+    "misleading_trials",
+    "ok_over_20m_pl",
+    "ok_over_100m",
+)
+
 
 def sem(x: np.ndarray) -> float:
     """Standard error of the mean of the finite values."""

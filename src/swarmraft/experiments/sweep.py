@@ -31,9 +31,15 @@ from swarmraft import __version__
 from swarmraft.estimation.registry import one_line
 from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
-from swarmraft.experiments.config import ConfigError, SweepConfig
+from swarmraft.experiments.config import PRESETS, ConfigError, SweepConfig
 from swarmraft.experiments.executors import check_executor, make_executor
-from swarmraft.experiments.metrics import CELL_COLUMNS, summarize_cell
+from swarmraft.experiments.metrics import (
+    CELL_COLUMNS,
+    CELL_COUNTS,
+    CELL_FINITE,
+    CELL_SHARES,
+    summarize_cell,
+)
 from swarmraft.experiments.tables import read_table, write_columns, write_json, write_rows
 from swarmraft.experiments.trials import TRIAL_COLUMNS, run_chunk
 
@@ -133,9 +139,77 @@ def load_results(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndar
     cells = read_table(folder / "cells.csv", CELL_COLUMNS, CELL_TEXT_COLUMNS)
     if not len(cells["n"]):
         raise ConfigError(f"{folder / 'cells.csv'}: no cell in it")
+    config = SweepConfig(**run["config"])
+    check_cells(cells, config, folder / "cells.csv")
     path = folder / "trials.csv"
     trials = read_table(path, TRIAL_COLUMNS, TRIAL_TEXT_COLUMNS) if path.exists() else {}
+    if trials:
+        _check_cell_set(trials, config, path)
     return cells, trials, run
+
+
+def _cells_text(pairs: object) -> str:
+    return ", ".join(f"({n}, {f})" for n, f in sorted(set(pairs)))  # type: ignore[call-overload]
+
+
+def _check_cell_set(table: dict[str, np.ndarray], config: SweepConfig, path: Path) -> None:
+    """The table's (n, f) cells are the ones run.json's config lists, or a ConfigError."""
+    have = {(int(n), int(f)) for n, f in zip(table["n"], table["f"], strict=True)}
+    if have != set(config.cells()):
+        raise ConfigError(
+            f"{path}: cells {_cells_text(have)} where run.json's config lists {_cells_text(config.cells())}"
+        )
+
+
+def _number(v: float) -> str:
+    return str(v) if isinstance(v, int | np.integer) else format(float(v), "g")
+
+
+def _kind(column: str) -> str:
+    if column.endswith("_sem"):
+        return "a standard error"
+    if column in CELL_COUNTS:
+        return "a count"
+    if column in CELL_SHARES:
+        return "a share"
+    return "a size, mean or ratio"
+
+
+def check_cells(cells: dict[str, np.ndarray], config: SweepConfig, path: Path) -> None:
+    """What cells.csv says agrees with run.json's config and with what its columns mean:
+    preset, detector and attack are the config's, the (n, f) cells are the config's with its
+    trials each, and every number is >= 0, finite where it is always defined
+    (`metrics.CELL_FINITE`), at most 1 for a share. Anything else is a one-line ConfigError
+    naming the file (and the line and column)."""
+    labels = {"preset": config.preset, "detector": config.detector, "attack": config.attack.name}
+    for k in range(len(cells["n"])):
+        at = f"{path}, line {k + 2}, column"
+        if (preset := str(cells["preset"][k])) not in PRESETS:
+            raise ConfigError(f"{at} preset: unknown preset {preset!r}; known: {', '.join(PRESETS)}")
+        for name, want in labels.items():
+            if str(cells[name][k]) != want:
+                raise ConfigError(
+                    f"{at} {name}: {str(cells[name][k])!r} where run.json's config has {want!r}"
+                )
+        for name in CELL_COLUMNS:
+            if name in CELL_TEXT_COLUMNS:
+                continue
+            v = cells[name][k]
+            if not np.isfinite(v):
+                if name in CELL_FINITE:
+                    raise ConfigError(f"{at} {name}: {_number(v)} where a finite number is required")
+                if not np.isnan(v):
+                    raise ConfigError(f"{at} {name}: {_number(v)} where a finite number or nan is expected")
+                continue
+            if v < 0:
+                raise ConfigError(f"{at} {name}: {_number(v)} is negative; {_kind(name)} cannot be")
+            if name in CELL_SHARES and v > 1:
+                raise ConfigError(f"{at} {name}: {_number(v)} is a share above 1")
+        if cells["trials"][k] != config.trials:
+            raise ConfigError(
+                f"{at} trials: {_number(cells['trials'][k])} where run.json's config has {config.trials}"
+            )
+    _check_cell_set(cells, config, path)
 
 
 def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:

@@ -207,33 +207,63 @@ def test_recovery_rings_failed_recoveries(drawn):
     assert "1 of 2" in ax.get_title()
 
 
-def test_recovery_3d_is_its_own_file(tmp_path):
-    out = tmp_path / "r"
-    run = CliRunner().invoke(
-        main,
-        [
-            "sweep",
-            "--preset",
-            "reference",
-            "--n",
-            "6",
-            "--f",
-            "2",
-            "--trials",
-            "10",
-            "--workers",
-            "1",
-            "--out",
-            str(out),
-        ],
-    )
+@pytest.fixture(scope="module")
+def reference_sweep(tmp_path_factory):
+    """A small finished reference sweep (n = 6, f = 2, 10 trials)."""
+    out = tmp_path_factory.mktemp("sweep") / "r"
+    args = ["sweep", "--preset", "reference", "--n", "6", "--f", "2", "--trials", "10", "--workers", "1"]
+    run = CliRunner().invoke(main, [*args, "--out", str(out)])
     assert run.exit_code == 0, run.output
+    return out
+
+
+def test_recovery_3d_is_its_own_file(reference_sweep):
+    out = reference_sweep
     assert CliRunner().invoke(main, ["figure", "recovery", str(out)]).exit_code == 0
     flat = (out / "figures" / "recovery.png").read_bytes()
     res = CliRunner().invoke(main, ["figure", "recovery", str(out), "--view", "3d"])
     assert res.exit_code == 0, res.output
     assert (out / "figures" / "recovery_3d.png").exists()
     assert (out / "figures" / "recovery.png").read_bytes() == flat
+
+
+def test_sweep_figure_titles_name_preset_detector_and_trials(reference_sweep, drawn):
+    from swarmraft.cli.sweeps import draw_figures
+
+    draw_figures("all", reference_sweep)
+    scaling, distribution, recovery = drawn
+    labels = "preset reference, detector paper, attack jump"
+    assert labels in scaling.axes[0].get_title()
+    assert labels in distribution.axes[0].get_title()
+    assert "10 trials per cell" in distribution.axes[0].get_title()
+    title = recovery._suptitle.get_text()
+    assert labels in title and "one trial per (n, f)" in title and "seed 2025" in title
+
+
+def test_distribution_counts_the_trials_it_draws(drawn):
+    trials = {
+        "n": np.array([5] * 4 + [7] * 6),
+        "f": np.array([2] * 4 + [3] * 6),
+        "baseline": np.full(10, 30.0),
+        "recovered": np.full(10, 1.0),
+    }
+    vf.distribution(trials, "x.png", "preset realistic, detector joint, attack jump")
+    title = drawn[0].axes[0].get_title()
+    assert "4-6 trials per cell" in title and "preset realistic, detector joint" in title
+
+
+@pytest.mark.parametrize("draw", ["latency", "messages"])
+def test_mission_timelines_mark_faults_the_same_way(drawn, draw):
+    t = np.arange(30) * 0.1
+    events = [(1.5, "leader 2 crashed")]
+    if draw == "latency":
+        vm.consensus_latency(t, np.full(30, 7.0), events, "x.png")
+    else:
+        vm.messages_per_step(t, np.full(30, 60), np.full(30, 9), 9, "x.png", events)
+    ax = drawn[0].axes[0]
+    (line,) = [ln for ln in ax.lines if ln.get_label() == "fault"]
+    assert list(line.get_xdata()) == [1.5, 1.5]
+    assert [x.get_text() for x in ax.texts] == ["leader 2 crashed"]
 
 
 def test_efficiency_standard_error_matches_the_spread_of_repeated_experiments():

@@ -57,7 +57,12 @@ def mission_figures(result, out: Path) -> list[Path]:
         ),
         vm.consensus_latency(log.t, log.latency_ms, log.events, fig_dir / "consensus_latency.png"),
         vm.messages_per_step(
-            log.t, log.raft_messages, log.report_messages, sc.drones, fig_dir / "messages_per_step.png"
+            log.t,
+            log.raft_messages,
+            log.report_messages,
+            sc.drones,
+            fig_dir / "messages_per_step.png",
+            log.events,
         ),
     ]
 

@@ -183,6 +183,8 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
     cells, trials, run = load_results(Path(results))
     if kind in ("distribution", "integrity", "all") and not trials:
         raise ValueError(f"{Path(results) / 'trials.csv'}: missing; the {kind} figure needs it")
+    config = SweepConfig(**run["config"])
+    labels = f"preset {config.preset}, detector {config.detector}, attack {config.attack.name}"
     kinds = ["scaling", "distribution", "recovery"] if kind == "all" else [kind]
     paths = []
     for k in kinds:
@@ -191,15 +193,14 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
         if k == "scaling":
             paths.append(viz.scaling(cells, target))
         elif k == "distribution":
-            title = f"preset {cells['preset'][0]}, detector {cells['detector'][0]}"
-            paths.append(viz.distribution(trials, target, title))
+            paths.append(viz.distribution(trials, target, labels))
         elif k == "integrity":
             cellset = ", ".join(f"({a}, {b})" for a, b in zip(cells["n"], cells["f"], strict=True))
             title = f"{cells['preset'][0]}, {cells['detector'][0]}, (n, f) = {cellset}"
             paths.append(viz.stanford(trials, target, title))
         else:
-            config = SweepConfig(**run["config"])
-            paths.append(viz.recovery(recovery_cases(config), target, view))
+            title = f"{labels}, seed {config.seed}"
+            paths.append(viz.recovery(recovery_cases(config), target, view, title))
     return paths
 
 

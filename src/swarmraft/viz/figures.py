@@ -35,6 +35,12 @@ def _title(cells: Mapping[str, np.ndarray]) -> str:
     return f"preset {cells['preset'][0]}, detector {cells['detector'][0]}, attack {cells['attack'][0]}"
 
 
+def _per_cell(counts: Sequence[int]) -> str:
+    """'200' or '180-200': the trials per cell of a figure's title."""
+    lo, hi = min(counts), max(counts)
+    return f"{lo}" if lo == hi else f"{lo}-{hi}"
+
+
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     """Mean error of the attacked drones against n on a log axis: reports (baseline) and
     verified positions, annotated (n, f); one recovered curve per f when the grid has several
@@ -131,15 +137,15 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     ax.set_xticks(np.unique(n))
     ax.grid(True, which="both", ls=":", alpha=0.6)
     ax.legend()
-    trials = sorted({int(t) for t in cells["trials"]})
-    per_cell = f"{trials[0]}" if len(trials) == 1 else f"{trials[0]}-{trials[-1]}"
+    per_cell = _per_cell([int(t) for t in cells["trials"]])
     ax.set_title(f"Error against swarm size\n{_title(cells)}, {per_cell} trials per cell", fontsize=10)
     return _save(fig, path)
 
 
 def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
     """Box plots of per-trial errors of the attacked drones, reports and verified, per (n, f),
-    on a log axis (verified errors reach 1e-9 m)."""
+    on a log axis (verified errors reach 1e-9 m); the title is ``title`` (what made the trials)
+    and the trials per cell drawn."""
     n, f = np.asarray(trials["n"]), np.asarray(trials["f"])
     keys = sorted(set(zip(n.tolist(), f.tolist(), strict=True)))
     floor = 1e-12
@@ -178,16 +184,21 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
         bbox_to_anchor=(1.0, 1.0),
     )
     ax.grid(True, axis="y", which="major", ls=":", alpha=0.6)
-    ax.set_title(f"Error distribution per trial{title and chr(10) + title}", fontsize=10)
+    counts = _per_cell([int(((n == a) & (f == b)).sum()) for a, b in keys])
+    under = f"{title}, {counts} trials per cell" if title else f"{counts} trials per cell"
+    ax.set_title(f"Error distribution per trial\n{under}", fontsize=10)
     return _save(fig, path)
 
 
-def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = "projections") -> Path:
+def recovery(
+    cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = "projections", title: str = ""
+) -> Path:
     """The paper's recovery picture: per case, true positions (green x), reports (red
     triangle), verified positions (yellow star) and arrows from truth to the spoofed reports;
     ``view`` "3d" or "projections" (XY and XZ). A failed recovery is ringed in red and its
     error written beside it: an attacked drone left unflagged, or verified farther from its
-    true position than max(1 m, 3 x the RMS error of the honest drones' reports)."""
+    true position than max(1 m, 3 x the RMS error of the honest drones' reports). ``title``
+    (what drew the cases: preset, detector, seed) goes above the panels."""
     if view not in ("3d", "projections"):
         raise ValueError("view must be '3d' or 'projections'")
     k = len(cases)
@@ -269,7 +280,11 @@ def recovery(cases: Sequence[Mapping[str, np.ndarray]], path: Path, view: str = 
                 handles.append(h)
                 labels.append(lab)
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), frameon=False)
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    top = 1.0
+    if title:
+        fig.suptitle(f"Recovery, one trial per (n, f)\n{title}", fontsize=11)
+        top = 0.96 if view == "projections" else 0.92
+    fig.tight_layout(rect=(0, 0.05, 1, top))
     return _save(fig, path)
 
 

@@ -24,8 +24,11 @@ LINEAR_BELOW_M = 1e-2
 
 
 def _fault_lines(ax: plt.Axes, events: Sequence[tuple[float, str]], label_it: bool) -> None:
-    for te, what in events:
-        ax.axvline(te, color="k", lw=0.8, alpha=0.7, label="fault")
+    """Each fault event (time s, what) as a vertical line (one legend entry, "fault"), with
+    ``what`` written along it at the top of the axes where ``label_it``. Every mission figure
+    with a time axis marks faults with this."""
+    for k, (te, what) in enumerate(events):
+        ax.axvline(te, color="k", lw=0.8, alpha=0.7, label="fault" if k == 0 else "_nolegend_")
         if label_it:
             ax.annotate(
                 what,
@@ -37,6 +40,7 @@ def _fault_lines(ax: plt.Axes, events: Sequence[tuple[float, str]], label_it: bo
                 va="top",
                 ha="right",
                 fontsize=6.5,
+                bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 0.5},
             )
 
 
@@ -294,16 +298,7 @@ def consensus_latency(
     """Time from each step's start to its record's first application; gaps = skipped steps."""
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [3, 1]})
     a1.plot(t, latency_ms, ".", ms=2)
-    for te, label in events:
-        a1.axvline(te, color="k", lw=0.7, alpha=0.6)
-        a1.annotate(
-            label,
-            (te, np.nanmax(latency_ms) if np.isfinite(latency_ms).any() else 1),
-            fontsize=7,
-            rotation=90,
-            va="top",
-            ha="right",
-        )
+    _fault_lines(a1, events, label_it=True)
     skipped = ~np.isfinite(latency_ms)
     if skipped.any():
         a1.plot(t[skipped], np.zeros(skipped.sum()), "x", color="tab:red", ms=4, label="skipped step")
@@ -319,13 +314,22 @@ def consensus_latency(
     return _save(fig, path)
 
 
-def messages_per_step(t: np.ndarray, raft: np.ndarray, reports: np.ndarray, n: int, path: Path) -> Path:
+def messages_per_step(
+    t: np.ndarray,
+    raft: np.ndarray,
+    reports: np.ndarray,
+    n: int,
+    path: Path,
+    events: Sequence[tuple[float, str]] = (),
+) -> Path:
     """Messages sent per step (Raft, and reports to the leader) against the Raft minimum for
-    one committed entry, 2(n-1): an append and its answer per follower."""
+    one committed entry, 2(n-1): an append and its answer per follower; faults marked as in
+    the other mission figures."""
     fig, ax = plt.subplots(figsize=(9, 3.8))
     ax.plot(t, raft, lw=0.8, label="Raft messages (appends, answers, heartbeats, votes)")
     ax.plot(t, reports, lw=0.8, label="reports to the leader")
     ax.axhline(2 * (n - 1), color="k", ls="--", lw=1, label=f"Raft minimum 2(n-1) = {2 * (n - 1)}")
+    _fault_lines(ax, events, label_it=True)
     ax.set_xlabel("time, s")
     ax.set_ylabel("messages per step")
     ax.grid(True, ls=":", alpha=0.5)

@@ -44,14 +44,10 @@ import numpy as np
 from pydantic import Field
 from scipy.special import ndtri
 
-from swarmraft.estimation.joint import (
-    chi2_quantile,
-    initial_positions,
-    residual_statistics,
-    tests_pass,
-    weighted_gauss_newton,
-)
+from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.rivals import rival_sets
+from swarmraft.estimation.robust import Estimate, anchor_planes, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
@@ -101,76 +97,6 @@ def worst_status(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(STATUS_ORDER, dtype=object)[np.maximum(status_rank(a), status_rank(b))]
 
 
-@dataclass(frozen=True)
-class Estimate:
-    """A joint estimate with its trusted set: positions (T, n, 3), cost (T,), converged (T,),
-    ambiguous (T, n): drones placed apart by two equally good minima."""
-
-    x: np.ndarray
-    cost: np.ndarray
-    converged: np.ndarray
-    ambiguous: np.ndarray
-
-
-def _trusted_weights(trusted: np.ndarray, prior: np.ndarray | None, shape: tuple[int, ...]):
-    gnss_w = trusted.astype(float)
-    range_w = np.broadcast_to(trusted[:, :, None], shape).astype(float)
-    if prior is not None:
-        prior = np.where(trusted[..., None], np.nan, prior)
-    return gnss_w, range_w, prior
-
-
-def robust_estimate(
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    prior: np.ndarray | None = None,
-    prior_sigma: float | None = None,
-    starts: tuple[np.ndarray, ...] = (),
-    iters: int = 50,
-    window: float = 10.83,
-) -> Estimate:
-    """The joint estimate with a trusted set, from several starts (closed form, its mirror
-    image, the reports, the prior, and ``starts``): GNSS of trusted drones, ranges measured
-    by trusted drones, priors (nan rows = none) of untrusted drones. Converged minima whose
-    cost is within ``window`` (default: chi-square 1 dof, 0.999) of the best and that place
-    an untrusted drone further apart than its GNSS error could explain are ambiguous."""
-    T, n, _ = reported.shape
-    if not (prior is not None and prior_sigma):
-        prior = None
-    gnss_w, range_w, pr = _trusted_weights(trusted, prior, ranges.shape)
-    closed = initial_positions(reported, ranges, trusted, pr)
-    x0 = [closed, mirrored(closed, ranges, trusted), reported]
-    if pr is not None:
-        x0.append(np.where(np.isnan(pr), reported, pr))
-    x0 += [np.where(np.isfinite(s), s, reported) for s in starts]
-    S = len(x0)
-    X, cost, conv = weighted_gauss_newton(
-        np.concatenate(x0),
-        np.tile(reported, (S, 1, 1)),
-        np.tile(ranges, (S, 1, 1)),
-        np.tile(gnss_w, (S, 1)),
-        np.tile(range_w, (S, 1, 1)),
-        noise.gnss_cov,
-        noise.range_sigma,
-        iters,
-        prior=None if pr is None else np.tile(pr, (S, 1, 1)),
-        prior_sigma=prior_sigma,
-        full=True,
-    )
-    X, cost, conv = X.reshape(S, T, n, 3), cost.reshape(S, T), conv.reshape(S, T)
-    score = np.where(conv, cost, np.inf)
-    best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
-    t = np.arange(T)
-    x, c = X[best, t], cost[best, t]
-    near = conv & (cost <= c[None] + window)
-    far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
-    apart = np.linalg.norm(X - x[None], axis=3) > far
-    ambiguous = (near[..., None] & apart).any(axis=0) & ~trusted
-    return Estimate(x, c, conv[best, t], ambiguous)
-
-
 def _hypothesis_information(
     x: np.ndarray,
     reported: np.ndarray,
@@ -208,31 +134,6 @@ def _hypothesis_information(
     b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
     b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
     return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n)
-
-
-def anchor_planes(
-    x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For every drone i, its anchors (T, i, k): trusted drones k that measured a range to
-    it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
-    ascending order of spread (column 0: the normal of their best-fit plane)."""
-    n = x.shape[1]
-    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
-    w = anchors.astype(float)
-    cnt = w.sum(axis=2)
-    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
-    dev = x[:, None, :, :] - mean[:, :, None, :]  # (T, i, k, 3)
-    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
-    return anchors, cnt, mean, vec
-
-
-def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
-    """x with every untrusted drone reflected across the best-fit plane of its anchors: a
-    start that reaches the other minimum of a near-coplanar geometry."""
-    _, _, mean, vec = anchor_planes(x, ranges, trusted)
-    normal = vec[..., :, 0]
-    h = np.einsum("tia,tia->ti", x - mean, normal)
-    return np.where(trusted[..., None], x, x - 2 * h[..., None] * normal)
 
 
 def mirror_ambiguous(
@@ -483,25 +384,95 @@ def finish(
     """The verdict of a decided trusted set (T, n): robust estimate, statuses and protection
     levels; ``status`` (T,) carries what the detector already knows (``unidentifiable``),
     which the assessment can only make more serious. The flagged drones are ``faulty``
-    (default: those outside the trusted set)."""
+    (default: those outside the trusted set).
+
+    A verdict that would be ``ok`` is then checked against rival explanations
+    (`rivals.rival_sets`): if another trusted set with at most ``f_max`` drones left out
+    passes the tests and places some drone beyond its protection level, the data do not
+    decide between them. The verdict becomes ``unidentifiable``, estimated from the drones
+    both sets trust, with only the drones outside both flagged."""
     reported = np.asarray(batch.reported, float)
     ranges = np.asarray(batch.ranges, float)
     prior = None if batch.prior is None else np.asarray(batch.prior, float)
-    window = float(chi2_quantile(1 - p.p_fa, 1))
-    est = robust_estimate(reported, ranges, trusted, noise, prior, batch.prior_sigma, starts, window=window)
-    a = assess(est, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
-    final = a.status if status is None else worst_status(a.status, status)
-    drone_status = a.drone_status if status is None else worst_status(a.drone_status, status[:, None])
-    cause = (
-        a.alarm_cause if status is None else np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
-    )
+    T, n, _ = reported.shape
+    faulty = ~trusted if faulty is None else faulty.copy()
+    status = np.full(T, "ok", dtype=object) if status is None else np.asarray(status, dtype=object).copy()
+    trusted = trusted.copy()
+    est, a = _judge(reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts)
+    final = worst_status(a.status, status)
+    rival = _rival_rows(est, a, final, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
+    if rival is not None:
+        rows, other = rival
+        status[rows] = "unidentifiable"
+        faulty[rows] = ~trusted[rows] & ~other
+        trusted[rows] &= other
+        sub = tuple(s[rows] for s in starts)
+        pr = None if prior is None else prior[rows]
+        _, b = _judge(reported[rows], ranges[rows], trusted[rows], noise, p, pr, batch.prior_sigma, sub)
+        fields = Assessment.__dataclass_fields__
+        a = Assessment(*(_merged(getattr(a, k), getattr(b, k), rows) for k in fields))
+        final = worst_status(a.status, status)
+    drone_status = worst_status(a.drone_status, status[:, None])
+    cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
     diag = {"sigma": a.sigma, "trusted": trusted, "alarm_cause": cause, **(diagnostics or {})}
     return VerdictBatch(
         positions=a.positions,
-        faulty=~trusted if faulty is None else faulty,
+        faulty=faulty,
         status=final.astype(str),
         diagnostics=diag,
         drone_status=drone_status.astype(str),
         hpl=a.hpl,
         vpl=a.vpl,
     )
+
+
+def _merged(whole: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``whole`` with ``rows`` replaced by ``part`` (strings kept whole, whatever their length)."""
+    out = whole.astype(object) if whole.dtype.kind == "U" else whole.copy()
+    out[rows] = part
+    return out
+
+
+def _judge(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p: IntegrityParams,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+    starts: tuple[np.ndarray, ...],
+) -> tuple[Estimate, Assessment]:
+    """Robust estimate and assessment of one trusted set per trial."""
+    window = float(chi2_quantile(1 - p.p_fa, 1))
+    est = robust_estimate(reported, ranges, trusted, noise, prior, prior_sigma, starts, window=window)
+    return est, assess(est, reported, ranges, trusted, noise, p, prior, prior_sigma)
+
+
+def _rival_rows(
+    est: Estimate,
+    a: Assessment,
+    status: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p: IntegrityParams,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Trials (indices) whose ``ok`` verdict has a rival trusted set placing some drone beyond
+    its protection level, and that rival (len(rows), n); None if there are none."""
+    rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
+    if not rows.size:
+        return None
+    r = rival_sets(est.x, reported, ranges, trusted, noise, p.p_fa, rows, prior, prior_sigma)
+    d = r.x - a.positions[r.owner]
+    with np.errstate(invalid="ignore"):
+        beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])
+    real = r.passed & beyond.any(axis=1)
+    if not real.any():
+        return None
+    # per trial, the first rival found (B is ordered by trial)
+    owners, first = np.unique(r.owner[real], return_index=True)
+    return owners, r.trusted[np.flatnonzero(real)[first]]

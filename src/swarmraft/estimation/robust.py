@@ -1,0 +1,112 @@
+"""The joint estimate of a decided trusted set, robust to where the solver starts.
+
+`robust_estimate` runs Levenberg-Marquardt with step acceptance from several starts
+(closed-form multilateration, its mirror image across the anchors' best-fit plane, the
+reports, the prior, and any start the caller brings) and keeps the lowest converged cost.
+Converged starts that fit equally well but place a drone apart (a mirror of near-coplanar
+anchors) leave that drone ambiguous; `integrity.assess` then calls it undetermined.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmraft.estimation.joint import initial_positions, weighted_gauss_newton
+from swarmraft.estimation.noise import NoiseModel
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A joint estimate with its trusted set: positions (T, n, 3), cost (T,), converged (T,),
+    ambiguous (T, n): drones placed apart by two equally good minima."""
+
+    x: np.ndarray
+    cost: np.ndarray
+    converged: np.ndarray
+    ambiguous: np.ndarray
+
+
+def _trusted_weights(trusted: np.ndarray, prior: np.ndarray | None, shape: tuple[int, ...]):
+    gnss_w = trusted.astype(float)
+    range_w = np.broadcast_to(trusted[:, :, None], shape).astype(float)
+    if prior is not None:
+        prior = np.where(trusted[..., None], np.nan, prior)
+    return gnss_w, range_w, prior
+
+
+def robust_estimate(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    prior: np.ndarray | None = None,
+    prior_sigma: float | None = None,
+    starts: tuple[np.ndarray, ...] = (),
+    iters: int = 50,
+    window: float = 10.83,
+) -> Estimate:
+    """The joint estimate with a trusted set, from several starts (closed form, its mirror
+    image, the reports, the prior, and ``starts``): GNSS of trusted drones, ranges measured
+    by trusted drones, priors (nan rows = none) of untrusted drones. Converged minima whose
+    cost is within ``window`` (default: chi-square 1 dof, 0.999) of the best and that place
+    an untrusted drone further apart than its GNSS error could explain are ambiguous."""
+    T, n, _ = reported.shape
+    if not (prior is not None and prior_sigma):
+        prior = None
+    gnss_w, range_w, pr = _trusted_weights(trusted, prior, ranges.shape)
+    closed = initial_positions(reported, ranges, trusted, pr)
+    x0 = [closed, mirrored(closed, ranges, trusted), reported]
+    if pr is not None:
+        x0.append(np.where(np.isnan(pr), reported, pr))
+    x0 += [np.where(np.isfinite(s), s, reported) for s in starts]
+    S = len(x0)
+    X, cost, conv = weighted_gauss_newton(
+        np.concatenate(x0),
+        np.tile(reported, (S, 1, 1)),
+        np.tile(ranges, (S, 1, 1)),
+        np.tile(gnss_w, (S, 1)),
+        np.tile(range_w, (S, 1, 1)),
+        noise.gnss_cov,
+        noise.range_sigma,
+        iters,
+        prior=None if pr is None else np.tile(pr, (S, 1, 1)),
+        prior_sigma=prior_sigma,
+        full=True,
+    )
+    X, cost, conv = X.reshape(S, T, n, 3), cost.reshape(S, T), conv.reshape(S, T)
+    score = np.where(conv, cost, np.inf)
+    best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
+    t = np.arange(T)
+    x, c = X[best, t], cost[best, t]
+    near = conv & (cost <= c[None] + window)
+    far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
+    apart = np.linalg.norm(X - x[None], axis=3) > far
+    ambiguous = (near[..., None] & apart).any(axis=0) & ~trusted
+    return Estimate(x, c, conv[best, t], ambiguous)
+
+
+def anchor_planes(
+    x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For every drone i, its anchors (T, i, k): trusted drones k that measured a range to
+    it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
+    ascending order of spread (column 0: the normal of their best-fit plane)."""
+    n = x.shape[1]
+    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+    w = anchors.astype(float)
+    cnt = w.sum(axis=2)
+    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
+    dev = x[:, None, :, :] - mean[:, :, None, :]  # (T, i, k, 3)
+    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    return anchors, cnt, mean, vec
+
+
+def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """x with every untrusted drone reflected across the best-fit plane of its anchors: a
+    start that reaches the other minimum of a near-coplanar geometry."""
+    _, _, mean, vec = anchor_planes(x, ranges, trusted)
+    normal = vec[..., :, 0]
+    h = np.einsum("tia,tia->ti", x - mean, normal)
+    return np.where(trusted[..., None], x, x - 2 * h[..., None] * normal)

@@ -327,3 +327,14 @@ def test_headings_never_cut_a_path():
         lines[2]
         == "detectors compared: realistic, n = 17, f = 8, 250 identical trials -> results/demo/compare"
     )
+
+
+def test_headings_fit_the_text_width_on_a_wide_console():
+    from rich.console import Console
+
+    from swarmraft.cli.app import TEXT_WIDTH, heading
+
+    con = Console(width=130, record=True, file=open("/dev/null", "w"), color_system=None)  # noqa: SIM115
+    heading("[bold]written[/]", con)
+    (line,) = con.export_text().splitlines()
+    assert len(line) == TEXT_WIDTH and "written" in line

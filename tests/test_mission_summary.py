@@ -44,7 +44,19 @@ def demo(tmp_path_factory):
     res = CliRunner().invoke(main, ["mission", "--scenario", str(_demo_file()), "--out", str(out)])
     assert res.exit_code == 0, res.output
     log = run_mission(load_scenario(_demo_file()))
-    return res.output, json.loads((out / "summary.json").read_text()), log, out
+    return res.stdout, json.loads((out / "summary.json").read_text()), log, out
+
+
+def test_piped_summary_lines_fit_100_columns_and_wrap_indented(demo):
+    """Piped output (a log file) keeps wide tables, but the summary's prose fits 100 columns,
+    each wrapped line indented under its first; only lines with paths may be longer."""
+    output, _, _, out = demo
+    lines = [ln for ln in output.splitlines() if ln.strip() and str(out) not in ln]
+    assert len(lines) > 20
+    assert max(len(ln) for ln in lines) <= 100, max(lines, key=len)
+    assert lines[0].startswith("demo-mission: 9 drones")
+    assert [ln for ln in lines[1:] if not ln.startswith("  ")] == []
+    assert [ln for ln in lines if ln != ln.rstrip()] == []
 
 
 def test_demo_summary_reports_every_wrong_partition_step_it_contains(demo):
@@ -52,9 +64,10 @@ def test_demo_summary_reports_every_wrong_partition_step_it_contains(demo):
     by_hand = _wrong_steps_by_hand(log)
     assert summary["wrong_partition_step_count"] == len(by_hand)
     assert [w["step"] for w in summary["wrong_partition_steps"]] == by_hand
-    assert f"in {len(by_hand)} committed steps" in output
+    said = " ".join(output.split())  # as read, whatever the line breaks
+    assert f"in {len(by_hand)} committed steps" in said
     for w in summary["wrong_partition_steps"][:12]:  # the printed list; the rest are in the JSON
-        assert f"t = {w['t']:.1f} s:" in output
+        assert f"t = {w['t']:.1f} s:" in said
         for d in w["honest_flagged"]:
             assert not log.spoofed[w["step"], d - 1] and log.faulty[w["step"], d - 1]
 

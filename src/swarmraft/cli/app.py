@@ -4,6 +4,7 @@ legend. Shared options are in `swarmraft.cli.options`, the tables in `swarmraft.
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -18,6 +19,7 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+from rich.rule import Rule
 from rich.table import Table
 from rich.text import Text
 
@@ -25,6 +27,8 @@ from rich.text import Text
 _WIDTH = None if sys.stdout.isatty() else 130
 console = Console(highlight=False, width=_WIDTH)
 err_console = Console(stderr=True, highlight=False, width=_WIDTH)
+#: prose (summary lines, headings) wraps here, or at the terminal's width if that is narrower
+TEXT_WIDTH = 100
 
 
 def _fail(message: str) -> None:
@@ -104,14 +108,37 @@ def progress_bar(
 
 
 def heading(title: str, to: Console | None = None) -> None:
-    """A section heading: a rule with ``title`` in it, or, when the title would be cut there
-    (a long output path), a plain rule with the title whole on the line under it."""
+    """A section heading: a rule of at most TEXT_WIDTH with ``title`` in it, or, when the
+    title would be cut there (a long output path), a plain rule with the title whole on the
+    line under it."""
     out = to or console
-    if Text.from_markup(title).cell_len + 6 <= out.width:
-        out.rule(title)
+    width = min(out.width, TEXT_WIDTH)
+    if Text.from_markup(title).cell_len + 6 <= width:
+        out.print(Rule(title), width=width)
     else:
-        out.rule()
+        out.print(Rule(), width=width)
         out.print(title, soft_wrap=True)
+
+
+# a number and its unit stay on one line: the space between them is this while wrapping
+_GLUE = "\u2423"
+_NUMBER_UNIT = re.compile(r"(?<=\d) (?=(?:m|s|ms)\b)")
+
+
+def print_wrapped(markup: str, indent: int = 0, to: Console | None = None) -> None:
+    """One statement of prose, indented by ``indent`` spaces and wrapped between words at
+    TEXT_WIDTH (or the terminal's width), each continuation line 4 spaces deeper, so a log
+    reads well at 80 columns and a wrapped line is never mistaken for a new one; a number
+    is not parted from its unit. Not for lines that print a path (those are never wrapped:
+    `soft_wrap`)."""
+    out = to or console
+    hang = 4
+    width = max(min(out.width, TEXT_WIDTH) - indent - hang, 20)
+    text = Text.from_markup(_NUMBER_UNIT.sub(_GLUE, markup))
+    for k, line in enumerate(text.wrap(out, width)):
+        line.rstrip()
+        line = Text(line.plain.replace(_GLUE, " "), style=line.style, spans=line.spans)
+        out.print(Text(" " * (indent + (hang if k else 0))) + line, soft_wrap=True)
 
 
 def print_table(table_and_legend: tuple[Table, str], to: Console | None = None) -> None:

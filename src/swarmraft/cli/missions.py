@@ -11,6 +11,7 @@ from swarmraft.cli.app import (
     console,
     err_console,
     main,
+    print_wrapped,
     progress_bar,
 )
 from swarmraft.cli.options import OutFolder
@@ -88,41 +89,46 @@ LIST_WRONG = 12
 
 
 def print_mission_summary(summary: dict) -> None:
+    """The summary as prose for a reader: each statement wrapped at TEXT_WIDTH (`app.print_wrapped`)."""
     s = summary
-    console.print(
+    print_wrapped(
         f"[bold]{s['scenario']}[/]: {s['drones']} drones, {s['steps']} steps, detector {s['detector']}"
     )
     for w in s["warnings"]:
-        console.print(f"  [red]warning[/]: {w}")
-    console.print(
-        f"  committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
+        print_wrapped(f"[red]warning[/]: {w}", 2)
+    print_wrapped(
+        f"committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
         f"(longest run {s['longest_skipped_run']}); records identical on all nodes: "
-        f"{'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}"
+        f"{'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}",
+        2,
     )
     ig = s["integrity"]
     statuses = ", ".join(f"{k} {v}" for k, v in ig["status_counts"].items())
     mis = ig["misleading_drone_steps"]
-    console.print(
-        f"  record statuses: {statuses}; protection levels (median, ok records): "
+    print_wrapped(
+        f"record statuses: {statuses}; protection levels (median, ok records): "
         f"horizontal {_m(ig['median_hpl_m'])}, vertical {_m(ig['median_vpl_m'])}; "
         + (
             f"[red]misleading information (error above its level, status ok): {mis} drone-steps[/]"
             f" at {', '.join(f'{t:g} s' for t in ig['misleading_times_s'])}"
             if mis
             else "misleading information (error above its level, status ok): none"
-        )
+        ),
+        2,
     )
-    console.print(
-        f"  honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
+    print_wrapped(
+        f"honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
         f"SwarmRaft {_m(s['honest_error_swarmraft_m'])}, "
         f"snapshot bound {_m(s['honest_snapshot_bound_m'])}; "
-        f"honest drones flagged in {s['honest_false_positive_rate']:.2%} of their steps"
+        f"honest drones flagged in {s['honest_false_positive_rate']:.2%} of their steps",
+        2,
     )
     wrong = s["wrong_partition_steps"]
     colour = "red" if wrong else "green"
-    console.print(
-        f"  [{colour}]wrong partition[/] (flags differ from the spoofed set among alive, "
-        f"reporting drones) in {s['wrong_partition_step_count']} committed steps" + (":" if wrong else "")
+    print_wrapped(
+        f"[{colour}]wrong partition[/] (flags differ from the spoofed set among alive, "
+        f"reporting drones) in {s['wrong_partition_step_count']} committed steps" + (":" if wrong else ""),
+        2,
     )
     for w in wrong[:LIST_WRONG]:
         parts = []
@@ -130,62 +136,70 @@ def print_mission_summary(summary: dict) -> None:
             parts.append(f"honest {_ids(w['honest_flagged'])} flagged")
         if w["spoofed_not_flagged"]:
             parts.append(f"spoofed {_ids(w['spoofed_not_flagged'])} not flagged")
-        console.print(f"    t = {w['t']:.1f} s: {'; '.join(parts)} (status {w['status']})")
+        print_wrapped(f"t = {w['t']:.1f} s: {'; '.join(parts)} (status {w['status']})", 4)
     if len(wrong) > LIST_WRONG:
         ranges = ", ".join(
             f"{a:.1f}" if a == b else f"{a:.1f}-{b:.1f}" for a, b in s["wrong_partition_time_ranges_s"]
         )
-        console.print(
-            f"    ... {len(wrong) - LIST_WRONG} more (summary.json lists every one); all, s: {ranges}"
+        print_wrapped(
+            f"... {len(wrong) - LIST_WRONG} more (summary.json lists every one); all, s: {ranges}", 4
         )
     for d in s["detections"]:
-        head = f"  {d['kind']} on drone {d['drone']} from {d['start_s']:g} s:"
+        head = f"{d['kind']} on drone {d['drone']} from {d['start_s']:g} s:"
         if not d["flagged_at_least_once"]:
-            console.print(
+            print_wrapped(
                 f"{head} [red]never flagged[/] in {d['judged_steps']} steps; error mean "
-                f"{_m(d['mean_error_m'])}, worst {_m(d['worst_error_m'])}"
+                f"{_m(d['mean_error_m'])}, worst {_m(d['worst_error_m'])}",
+                2,
             )
             continue
-        console.print(
+        print_wrapped(
             f"{head} flagged in {_pct(d['flagged_fraction'])} of {d['judged_steps']} steps; "
             f"first {_s(d['time_to_first_detection_s'])} (its GNSS then "
             f"{d['reported_error_at_first_detection_m']} m off), sustained "
-            f"{_s(d['time_to_sustained_detection_s'])}"
+            f"{_s(d['time_to_sustained_detection_s'])}",
+            2,
         )
-        console.print(
-            f"    error from the spoof's start: mean {_m(d['mean_error_m'])}, worst "
-            f"{_m(d['worst_error_m'])}; snapshot bound {_m(d['mean_snapshot_bound_m'])}"
+        print_wrapped(
+            f"error from the spoof's start: mean {_m(d['mean_error_m'])}, worst "
+            f"{_m(d['worst_error_m'])}; snapshot bound {_m(d['mean_snapshot_bound_m'])}",
+            4,
         )
     for a in s["after_faults"]:
-        console.print(
-            f"  after {a['event']} ({a['from_s']:.1f}-{a['to_s']:.1f} s): honest drones SwarmRaft "
+        print_wrapped(
+            f"after {a['event']} ({a['from_s']:.1f}-{a['to_s']:.1f} s): honest drones SwarmRaft "
             f"{_m(a['honest_error_swarmraft_m'])} against raw GNSS {_m(a['honest_error_gnss_m'])}; "
-            f"{a['skipped_steps']} skipped, {a['wrong_partition_steps']} wrong-partition steps"
+            f"{a['skipped_steps']} skipped, {a['wrong_partition_steps']} wrong-partition steps",
+            2,
         )
     for o in s["outages"]:
         end = "end" if o["to_s"] is None else f"{o['to_s']:g}"
-        console.print(
-            f"  GNSS outage of drone {o['drone']} ({o['from_s']:g}-{end} s): mean error SwarmRaft "
-            f"{_m(o['mean_error_swarmraft_m'])}, snapshot bound {_m(o['mean_snapshot_bound_m'])}"
+        print_wrapped(
+            f"GNSS outage of drone {o['drone']} ({o['from_s']:g}-{end} s): mean error SwarmRaft "
+            f"{_m(o['mean_error_swarmraft_m'])}, snapshot bound {_m(o['mean_snapshot_bound_m'])}",
+            2,
         )
-        console.print(
-            f"    INS aligned to the truth at the outage's start {_m(o['mean_error_ins_aligned_m'])}; "
+        print_wrapped(
+            f"INS aligned to the truth at the outage's start {_m(o['mean_error_ins_aligned_m'])}; "
             f"INS never reset {_m(o['mean_error_ins_alone_m'])} "
-            f"({_m(o['ins_alone_error_at_start_m'])} off at the start)"
+            f"({_m(o['ins_alone_error_at_start_m'])} off at the start)",
+            4,
         )
-    console.print(f"  consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms")
-    console.print(
-        f"  Raft messages per committed step {s['raft_messages_per_committed_step']} "
-        f"(minimum 2(n-1) = {s['raft_minimum_per_step']}), reports per step {s['reports_per_step']}"
+    print_wrapped(f"consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms", 2)
+    print_wrapped(
+        f"Raft messages per committed step {s['raft_messages_per_committed_step']} "
+        f"(minimum 2(n-1) = {s['raft_minimum_per_step']}), reports per step {s['reports_per_step']}",
+        2,
     )
     for e in s["events"]:
-        console.print(f"  event: {e}")
+        print_wrapped(f"event: {e}", 2)
     if s["detections"]:
-        console.print(
-            f"  sustained: flagged in every step of the {s['sustained_detection_s']:g} s that start "
-            "there, within the spoof"
+        print_wrapped(
+            f"sustained: flagged in every step of the {s['sustained_detection_s']:g} s that start "
+            "there, within the spoof",
+            2,
         )
-    console.print(f"  {s['bound_note']}")
+    print_wrapped(s["bound_note"], 2)
 
 
 @main.command()

@@ -114,3 +114,23 @@ def test_formation_geometry(tmp_path):
     assert res.cells["trials"][0] == 50
     with pytest.raises(ConfigError, match="^geometry: "):
         small(geometry="sphere")
+
+
+def test_efficiency_over_ok_verdicts_leaves_the_withheld_ones_out():
+    """attacked_efficiency counts every trial; attacked_efficiency_ok only the ok verdicts,
+    each over the same trials in numerator and denominator."""
+    from swarmraft.experiments.metrics import summarize_cell
+    from swarmraft.experiments.trials import TRIAL_COLUMNS
+
+    T = 4
+    trials = {c: np.zeros(T) for c in TRIAL_COLUMNS}
+    trials.update(n=np.full(T, 9), f=np.full(T, 4), identified=np.ones(T, bool))
+    trials["status"] = np.array(["ok", "ok", "alarm", "ok"])
+    for g in ("attacked", "honest"):
+        trials[f"{g}_bound"] = np.array([1.0, 1.0, 1.0, np.nan])  # the last has no bound
+        trials[f"{g}_sq"] = np.array([1.0, 1.0, 100.0, 5.0])
+    row = summarize_cell(trials, {"preset": "realistic", "detector": "joint", "attack": "jump"})
+    for g in ("attacked", "honest"):
+        assert row[f"{g}_efficiency_ok"] == pytest.approx(1.0)
+        assert row[f"{g}_efficiency"] == pytest.approx(np.sqrt(102 / 3))
+        assert row[f"{g}_bound_excluded"] == 1

@@ -38,10 +38,12 @@ CELL_COLUMNS = (
     "attacked_nees",
     "attacked_catastrophic",
     "attacked_bound_excluded",
+    "attacked_efficiency_ok",
     "honest_efficiency",
     "honest_nees",
     "honest_catastrophic",
     "honest_bound_excluded",
+    "honest_efficiency_ok",
     "misleading_rate",
     "misleading_trials",
     "ok_over_20m_pl",
@@ -114,6 +116,12 @@ def _share_over(x: np.ndarray, limit: float) -> float:
     return float(np.mean(v > limit)) if v.size else float("nan")
 
 
+def _efficiency(sq: np.ndarray, bound: np.ndarray) -> float:
+    """sqrt(mean squared error / mean trace of the bound) over paired trials; nan if none."""
+    b = _mean(bound)
+    return float(np.sqrt(_mean(sq) / b)) if b > 0 else float("nan")
+
+
 def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) -> dict:
     """One row of cells.csv from one cell's per-trial columns."""
     rec = np.asarray(trials["recovered"], dtype=float)
@@ -143,17 +151,18 @@ def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) 
     }
     for s in STATUSES:
         row[f"status_{s}"] = float(np.mean(status == s))
+    ok = status == "ok"
     for g in ("attacked", "honest"):
         # efficiency = sqrt(mean squared error / mean trace of the bound), both over the same
-        # trials: those with a finite bound and an error (the others are counted)
+        # trials: those with a finite bound and an error (the others are counted); over every
+        # trial whatever its status, and over the ok verdicts only (what a user may use)
         sq_t, bound_t = np.asarray(trials[f"{g}_sq"], float), np.asarray(trials[f"{g}_bound"], float)
         both = np.isfinite(sq_t) & np.isfinite(bound_t)
-        sq, bound = _mean(sq_t[both]), _mean(bound_t[both])
-        row[f"{g}_efficiency"] = float(np.sqrt(sq / bound)) if bound > 0 else float("nan")
+        row[f"{g}_efficiency"] = _efficiency(sq_t[both], bound_t[both])
+        row[f"{g}_efficiency_ok"] = _efficiency(sq_t[both & ok], bound_t[both & ok])
         row[f"{g}_bound_excluded"] = int((~both).sum()) if np.isfinite(bound_t).any() else 0
         row[f"{g}_nees"] = _mean(np.asarray(trials[f"{g}_nees"], float))
         row[f"{g}_catastrophic"] = _mean(np.asarray(trials[f"{g}_catastrophic"], float))
-    ok = status == "ok"
     mis = np.asarray(trials["misleading"], float) > 0
     row["misleading_rate"] = float(mis[ok].mean()) if ok.any() else float("nan")
     row["misleading_trials"] = int(mis.sum())

@@ -161,8 +161,18 @@ def test_unknown_scenario_name_lists_the_shipped_ones(cwd):
 def test_sweep_config_with_inf(cwd):
     (cwd / "c.toml").write_text('preset = "realistic"\nn = [5]\n[gnss]\nsigma_h = inf\n')
     fails_cleanly(
-        ["sweep", "--config", "c.toml", "--out", "o"], "gnss.sigma_h: Input should be a finite", cwd
+        ["sweep", "--config", "c.toml", "--out", "o"],
+        "--config c.toml: gnss.sigma_h: Input should be a finite",
+        cwd,
     )
+
+
+def test_a_bad_field_from_the_config_file_names_the_file_and_a_flag_names_the_flag(cwd):
+    (cwd / "c.toml").write_text("n = [2]\n")
+    fails_cleanly(
+        ["sweep", "--config", "c.toml", "--out", "o"], "error: --config c.toml: n: every swarm", cwd
+    )
+    fails_cleanly(["sweep", "--config", "c.toml", "--n", "2", "--out", "o"], "error: --n: every swarm", cwd)
 
 
 @pytest.fixture(scope="module")

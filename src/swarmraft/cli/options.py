@@ -155,7 +155,7 @@ def key_values(items: tuple[str, ...]) -> dict[str, Any]:
 def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
     """A validated SweepConfig from a preset, an optional TOML file and command-line flags
     (flags override the file, the file overrides the preset)."""
-    from swarmraft.experiments import build_config
+    from swarmraft.experiments import ConfigError, build_config
     from swarmraft.experiments.config import read_toml
 
     settings: dict[str, Any] = {}
@@ -170,4 +170,12 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
         "seed": seed,
         **extra,
     }
-    return build_config(preset, **{**settings, **{k: v for k, v in overrides.items() if v is not None}})
+    flags = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return build_config(preset, **{**settings, **flags})
+    except ConfigError as exc:
+        # a field the file set (and no flag overrode) is named with the file it came from
+        field = str(exc).split(":", 1)[0].split(".", 1)[0]
+        if config_file is not None and field in settings and field not in flags:
+            raise ConfigError(f"--config {config_file}: {exc}") from None
+        raise

@@ -252,6 +252,18 @@ def test_distribution_counts_the_trials_it_draws(drawn):
     assert "4-6 trials per cell" in title and "preset realistic, detector joint" in title
 
 
+def test_distribution_counts_undetermined_trials_instead_of_drawing_nothing(drawn):
+    trials = {
+        "n": np.array([5] * 4 + [7] * 4),
+        "f": np.array([2] * 4 + [3] * 4),
+        "baseline": np.full(8, 30.0),
+        "recovered": np.array([np.nan] * 4 + [1.0, np.nan, 2.0, 3.0]),
+    }
+    vf.distribution(trials, "x.png")
+    texts = [t.get_text() for t in drawn[0].axes[0].texts]
+    assert texts == ["all undetermined", "1 undetermined"]
+
+
 @pytest.mark.parametrize("draw", ["latency", "messages"])
 def test_mission_timelines_mark_faults_the_same_way(drawn, draw):
     t = np.arange(30) * 0.1

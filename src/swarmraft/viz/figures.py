@@ -145,12 +145,17 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
 def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
     """Box plots of per-trial errors of the attacked drones, reports and verified, per (n, f),
     on a log axis (verified errors reach 1e-9 m); the title is ``title`` (what made the trials)
-    and the trials per cell drawn."""
+    and the trials per cell drawn. Trials whose verified error is undefined (every attacked
+    drone left undetermined) are counted under the cell's box instead of drawn."""
     n, f = np.asarray(trials["n"]), np.asarray(trials["f"])
     keys = sorted(set(zip(n.tolist(), f.tolist(), strict=True)))
     floor = 1e-12
     base = [np.maximum(trials["baseline"][(n == a) & (f == b)], floor) for a, b in keys]
-    rec = [np.maximum(trials["recovered"][(n == a) & (f == b)], floor) for a, b in keys]
+    rec_all = [np.asarray(trials["recovered"], float)[(n == a) & (f == b)] for a, b in keys]
+    # a trial whose attacked drones were all left undetermined (nan) has no error to draw:
+    # it is left out of the box and counted under it
+    rec = [np.maximum(r[np.isfinite(r)], floor) for r in rec_all]
+    undetermined = [int((~np.isfinite(r)).sum()) for r in rec_all]
     pos = np.arange(len(keys)) * 3.0
     fig, ax = plt.subplots(figsize=(max(7, 1.1 * len(keys)), 5))
     b1 = ax.boxplot(
@@ -184,6 +189,19 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
         bbox_to_anchor=(1.0, 1.0),
     )
     ax.grid(True, axis="y", which="major", ls=":", alpha=0.6)
+    for x, k, total in zip(pos + 0.55, undetermined, rec_all, strict=True):
+        if k:
+            label = "all undetermined" if k == total.size else f"{k} undetermined"
+            ax.annotate(
+                label,
+                (x, 0.02),
+                xycoords=("data", "axes fraction"),
+                rotation=90,
+                fontsize=7,
+                ha="center",
+                va="bottom",
+                color="#8a5a00",
+            )
     counts = _per_cell([int(((n == a) & (f == b)).sum()) for a, b in keys])
     under = f"{title}, {counts} trials per cell" if title else f"{counts} trials per cell"
     ax.set_title(f"Error distribution per trial\n{under}", fontsize=10)

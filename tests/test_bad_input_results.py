@@ -69,10 +69,12 @@ def test_cells_csv_with_a_word_for_a_number(ref, command):
 
 def test_garbage_cells_csv(ref):
     (ref / "cells.csv").write_text("hello\nworld\n")
-    line = fails_cleanly(["check", "ref"], "ref/cells.csv: not a table this program wrote", ref.parent)
+    line = fails_cleanly(
+        ["check", "ref"], "ref/cells.csv: not a table this version of swarmraft wrote", ref.parent
+    )
     from swarmraft.experiments.metrics import CELL_COLUMNS
 
-    assert f"(no column n, f, trials and {len(CELL_COLUMNS) - 3} more)" in line
+    assert f"(no column n, f, trials and {len(CELL_COLUMNS) - 3} more; a folder from another version" in line
 
 
 @pytest.mark.parametrize("command", [["check", "ref"], ["figure", "recovery", "ref"], resume()])

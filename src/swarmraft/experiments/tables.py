@@ -72,7 +72,10 @@ def read_table(path: Path, required: Sequence[str] = (), text: Iterable[str] = (
     missing = [c for c in required if c not in header]
     if missing:
         more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
-        raise TableError(f"{path}: not a table this program wrote (no column {', '.join(missing[:3])}{more})")
+        raise TableError(
+            f"{path}: not a table this version of swarmraft wrote (no column "
+            f"{', '.join(missing[:3])}{more}; a folder from another version: run it again)"
+        )
     for k, row in enumerate(body):
         if len(row) != len(header):
             raise TableError(

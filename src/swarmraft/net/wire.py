@@ -1,0 +1,246 @@
+"""The datagram format of the networked runtime: a versioned header, a payload, a signature.
+
+Pure functions, bytes in and bytes out: ``frame(kind, sender, seq, payload)`` gives the bytes
+to sign, the caller appends the 64-byte Ed25519 signature; ``parse(data)`` checks the layout
+and gives a `Datagram`; ``encode_payload``/``decode_payload`` turn Raft messages and reports
+into payload bytes and back. Anything malformed raises `WireError` (never another
+exception); no I/O, no clock, no keys (signing and checking are `swarmraft.net.auth`'s).
+
+Layout (little-endian, as `swarmraft.protocol.records`), offsets in bytes:
+
+    0  magic    2  b"SR"
+    2  version  1  VERSION (1)
+    3  kind     1  Kind: 1 RAFT, 2 REPORT (0 and 3-255 reserved)
+    4  sender   4  u32 sender id (the Raft node id, 1..n)
+    8  seq      8  u64 per-sender sequence number, increasing
+   16  length   4  u32 payload length in bytes
+   20  payload  length bytes
+   20+length  signature  64  Ed25519 over bytes [0, 20+length)
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+from swarmraft.protocol.records import Report
+from swarmraft.raft.types import Entry, EntryKind, Message, MsgType
+
+MAGIC = b"SR"
+VERSION = 1
+SIGNATURE_SIZE = 64
+#: Largest datagram accepted or produced, in bytes. The largest UDP payload over IPv4 is
+#: 65,507 bytes (65,535 less the 20-byte IP and 8-byte UDP headers); 60,000 leaves room for IP
+#: options and IPv6 extension headers, so every datagram fits one UDP packet and one 64 KiB
+#: receive buffer, and a larger one is refused before any parsing.
+MAX_DATAGRAM = 60_000
+
+_HEADER = struct.Struct("<2sBBIQI")  # magic, version, kind, sender, seq, payload length
+HEADER_SIZE = _HEADER.size  # 20
+#: Largest payload a datagram can carry.
+MAX_PAYLOAD = MAX_DATAGRAM - HEADER_SIZE - SIGNATURE_SIZE
+
+_U32 = 2**32 - 1
+_U64 = 2**64 - 1
+
+# Raft message: type, flags (bit 0: reject), frm, to, term, log_term, index, commit,
+# reject_hint, number of entries; then each entry: term, index, kind, data length, data.
+_MESSAGE = struct.Struct("<BBIIQQQQQI")
+_ENTRY = struct.Struct("<QQBI")
+_REJECT = 0x01
+
+# Codes are fixed here, not taken from enum order, so a new member cannot shift old codes.
+_MSG_CODES: dict[MsgType, int] = {
+    MsgType.PROP: 1,
+    MsgType.APP: 2,
+    MsgType.APP_RESP: 3,
+    MsgType.VOTE: 4,
+    MsgType.VOTE_RESP: 5,
+    MsgType.PRE_VOTE: 6,
+    MsgType.PRE_VOTE_RESP: 7,
+    MsgType.HEARTBEAT: 8,
+    MsgType.HEARTBEAT_RESP: 9,
+}
+_MSG_TYPES = {code: t for t, code in _MSG_CODES.items()}
+_KIND_CODES: dict[EntryKind, int] = {EntryKind.NORMAL: 0, EntryKind.NOOP: 1}
+_ENTRY_KINDS = {code: k for k, code in _KIND_CODES.items()}
+
+
+class Kind(IntEnum):
+    """What a datagram's payload holds."""
+
+    RAFT = 1  # a raft.types.Message
+    REPORT = 2  # a protocol.records.Report, as Report.encode() writes it (signed)
+
+
+class WireError(ValueError):
+    """A datagram or payload that does not follow the format. ``reason`` is a short code
+    (``truncated``, ``bad_magic``, ``bad_version``, ``unknown_kind``, ``length_mismatch``,
+    ``oversized``, ``bad_value``, ``trailing_bytes``, ``bad_report``); the message says more."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        super().__init__(f"{reason}: {detail}")
+
+
+@dataclass(frozen=True, slots=True)
+class Datagram:
+    """A parsed datagram. ``signed`` is the exact header+payload bytes the signature covers."""
+
+    kind: Kind
+    sender: int
+    seq: int
+    payload: bytes
+    signed: bytes
+    signature: bytes
+
+
+def frame(kind: Kind, sender: int, seq: int, payload: bytes) -> bytes:
+    """Header + payload: the bytes to sign. The datagram is these bytes + the signature."""
+    _check_int("sender", sender, _U32)
+    _check_int("seq", seq, _U64)
+    if len(payload) > MAX_PAYLOAD:
+        raise WireError("oversized", f"payload of {len(payload)} bytes, the most is {MAX_PAYLOAD}")
+    return _HEADER.pack(MAGIC, VERSION, Kind(kind), sender, seq, len(payload)) + payload
+
+
+def parse(data: bytes) -> Datagram:
+    """The datagram in ``data``, its layout checked (not its signature, not its payload)."""
+    size = len(data)
+    if size > MAX_DATAGRAM:
+        raise WireError("oversized", f"{size} bytes, the most is {MAX_DATAGRAM}")
+    if size < HEADER_SIZE + SIGNATURE_SIZE:
+        raise WireError("truncated", f"{size} bytes, shorter than header and signature")
+    magic, version, kind, sender, seq, length = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise WireError("bad_magic", f"starts with {bytes(magic)!r}, not {MAGIC!r}")
+    if version != VERSION:
+        raise WireError("bad_version", f"version {version}, this program speaks {VERSION}")
+    if kind not in Kind._value2member_map_:
+        raise WireError("unknown_kind", f"kind {kind}")
+    end = HEADER_SIZE + length
+    if end + SIGNATURE_SIZE != size:
+        held = size - HEADER_SIZE - SIGNATURE_SIZE
+        raise WireError("length_mismatch", f"header says {length} payload bytes, the datagram holds {held}")
+    data = bytes(data)
+    return Datagram(Kind(kind), sender, seq, data[HEADER_SIZE:end], data[:end], data[end:])
+
+
+def encode_payload(obj: Message | Report) -> tuple[Kind, bytes]:
+    """A Raft message or a signed report as (kind, payload bytes)."""
+    if isinstance(obj, Message):
+        return Kind.RAFT, encode_message(obj)
+    if isinstance(obj, Report):
+        return Kind.REPORT, encode_report(obj)
+    raise WireError("bad_value", f"cannot encode a {type(obj).__name__}")
+
+
+def decode_payload(kind: Kind, payload: bytes) -> Message | Report:
+    if kind == Kind.RAFT:
+        return decode_message(payload)
+    if kind == Kind.REPORT:
+        return decode_report(payload)
+    raise WireError("unknown_kind", f"kind {kind}")
+
+
+def encode_message(msg: Message) -> bytes:
+    """A Raft message as bytes: every field, entries with their term, index, kind and data."""
+    if msg.type not in _MSG_CODES:
+        raise WireError("bad_value", f"message type {msg.type!r}")
+    for name in ("frm", "to"):
+        _check_int(name, getattr(msg, name), _U32)
+    for name in ("term", "log_term", "index", "commit", "reject_hint"):
+        _check_int(name, getattr(msg, name), _U64)
+    if not isinstance(msg.reject, bool):
+        raise WireError("bad_value", f"reject = {msg.reject!r}, not a bool")
+    parts = [
+        _MESSAGE.pack(
+            _MSG_CODES[msg.type],
+            _REJECT if msg.reject else 0,
+            msg.frm,
+            msg.to,
+            msg.term,
+            msg.log_term,
+            msg.index,
+            msg.commit,
+            msg.reject_hint,
+            len(msg.entries),
+        )
+    ]
+    for e in msg.entries:
+        _check_int("entry term", e.term, _U64)
+        _check_int("entry index", e.index, _U64)
+        if e.kind not in _KIND_CODES:
+            raise WireError("bad_value", f"entry kind {e.kind!r}")
+        if not isinstance(e.data, bytes):
+            raise WireError("bad_value", f"entry data is a {type(e.data).__name__}, not bytes")
+        parts.append(_ENTRY.pack(e.term, e.index, _KIND_CODES[e.kind], len(e.data)))
+        parts.append(e.data)
+    out = b"".join(parts)
+    if len(out) > MAX_PAYLOAD:
+        raise WireError("oversized", f"message of {len(out)} bytes, the most is {MAX_PAYLOAD}")
+    return out
+
+
+def decode_message(payload: bytes) -> Message:
+    if len(payload) < _MESSAGE.size:
+        raise WireError("truncated", f"Raft message of {len(payload)} bytes, the header is {_MESSAGE.size}")
+    code, flags, frm, to, term, log_term, index, commit, hint, count = _MESSAGE.unpack_from(payload)
+    if code not in _MSG_TYPES:
+        raise WireError("bad_value", f"message type code {code}")
+    if flags & ~_REJECT:
+        raise WireError("bad_value", f"unknown flag bits {flags:#04x}")
+    off = _MESSAGE.size
+    if count > (len(payload) - off) // _ENTRY.size:
+        raise WireError("bad_value", f"{count} entries cannot fit in {len(payload) - off} bytes")
+    entries = []
+    for _ in range(count):
+        if off + _ENTRY.size > len(payload):
+            raise WireError("truncated", f"entry {len(entries)} header runs past the payload")
+        e_term, e_index, e_kind, length = _ENTRY.unpack_from(payload, off)
+        off += _ENTRY.size
+        if e_kind not in _ENTRY_KINDS:
+            raise WireError("bad_value", f"entry kind code {e_kind}")
+        if off + length > len(payload):
+            raise WireError("truncated", f"entry {len(entries)} data runs past the payload")
+        entries.append(Entry(e_term, e_index, bytes(payload[off : off + length]), _ENTRY_KINDS[e_kind]))
+        off += length
+    if off != len(payload):
+        raise WireError("trailing_bytes", f"{len(payload) - off} bytes after the last entry")
+    return Message(
+        _MSG_TYPES[code], frm, to, term, log_term, index, tuple(entries), commit, bool(flags & _REJECT), hint
+    )
+
+
+def encode_report(report: Report) -> bytes:
+    """A signed report as `Report.encode` writes it."""
+    if len(report.signature) != SIGNATURE_SIZE:
+        raise WireError("bad_report", f"report signature of {len(report.signature)} bytes, not 64")
+    try:
+        out = report.encode()
+    except (struct.error, ValueError, TypeError) as exc:
+        raise WireError("bad_value", f"report does not encode: {exc}") from None
+    if len(out) > MAX_PAYLOAD:
+        raise WireError("oversized", f"report of {len(out)} bytes, the most is {MAX_PAYLOAD}")
+    return out
+
+
+def decode_report(payload: bytes) -> Report:
+    """A signed report. `Report.decode` checks nothing, so the decoded report must encode
+    back to exactly ``payload`` with a 64-byte signature: no field out of range, no bytes
+    missing or left over."""
+    try:
+        report = Report.decode(payload)
+    except (struct.error, ValueError, IndexError, TypeError) as exc:
+        raise WireError("bad_report", f"report does not decode: {exc}") from None
+    if len(report.signature) != SIGNATURE_SIZE:
+        raise WireError("bad_report", f"{len(report.signature)} bytes after the report body, not a signature")
+    if report.encode() != payload:
+        raise WireError("bad_report", "report fields out of range (it does not encode back to its bytes)")
+    return report
+
+
+def _check_int(name: str, value: object, top: int) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= top:
+        raise WireError("bad_value", f"{name} = {value!r}, not an integer in [0, {top}]")

@@ -1,0 +1,94 @@
+"""Benchmark of Ed25519 signing and verification for the networked runtime's datagrams.
+
+Prints, per library and message size (200 bytes: a Raft heartbeat or vote; 1,400 bytes: a
+report or an append that fills one Ethernet-sized datagram), the per-operation time in
+microseconds, best and median of several runs, against the target:
+
+  verify <= 150 us per datagram. At n = 33 drones and 10 Hz steps the leader receives about
+  4 (n - 1) = 128 datagrams per 100 ms step (a report, an append response and two heartbeat
+  responses from each follower), about 1,300 a second; at 150 us each that is 19 ms of every
+  100 ms, under a fifth of one core, which leaves the rest for verification of the step.
+  Signing is done once per datagram sent, about as many, so sign <= 150 us as well.
+
+Libraries: `cryptography` (already a dependency, OpenSSL underneath) and PyNaCl (libsodium),
+measured only if it is importable (``.venv/bin/pip install pynacl``).
+
+Decision (three runs on the shared 2-core machine while another job kept both cores busy,
+numbers in docs/net.md): `cryptography` verifies in 136-192 us (median of a run), at or over
+the target in 5 of 6 run medians; PyNaCl in 97-110 us, under it every time, and signs about
+as fast or faster. So `swarmraft.net.auth` uses PyNaCl (a dependency since this measurement)
+for datagram signatures. Both are RFC 8032 Ed25519 over the same bytes with the same 32-byte
+keys, so a key file serves both, and the reports' own signatures (`protocol.signing`, with
+`cryptography`) verify against the same keys.
+
+Run: .venv/bin/python benchmarks/bench_crypto.py [--ops 2000] [--runs 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from collections.abc import Callable
+
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+TARGET_US = 150.0
+SIZES = (200, 1400)
+
+
+def per_op_us(fn: Callable[[], object], ops: int, runs: int) -> tuple[float, float]:
+    """Best and median over ``runs`` runs of the mean time of one call, in microseconds."""
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        for _ in range(ops):
+            fn()
+        times.append((time.perf_counter() - t0) / ops * 1e6)
+    return min(times), statistics.median(times)
+
+
+def cryptography_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]]:
+    key = Ed25519PrivateKey.from_private_bytes(os.urandom(32))
+    pub = key.public_key()
+    sig = key.sign(msg)
+    return (lambda: key.sign(msg)), (lambda: pub.verify(sig, msg))
+
+
+def pynacl_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]] | None:
+    try:
+        from nacl.signing import SigningKey
+    except ImportError:
+        return None
+    key = SigningKey(os.urandom(32))
+    pub = key.verify_key
+    sig = key.sign(msg).signature
+    return (lambda: key.sign(msg)), (lambda: pub.verify(msg, sig))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ops", type=int, default=2000, help="operations per run")
+    ap.add_argument("--runs", type=int, default=7)
+    args = ap.parse_args()
+
+    print(f"Ed25519, per operation in us: best / median of {args.runs} runs of {args.ops} ops")
+    print(f"target: sign and verify <= {TARGET_US:.0f} us")
+    head = f"{'library':<14}{'bytes':>7}{'sign best':>11}{'median':>9}{'verify best':>13}{'median':>9}"
+    print(head + "  target")
+    for name, make in (("cryptography", cryptography_ops), ("pynacl", pynacl_ops)):
+        for size in SIZES:
+            ops = make(os.urandom(size))
+            if ops is None:
+                print(f"{name:<14}{size:>7}  not installed")
+                break
+            sign, verify = ops
+            s_best, s_med = per_op_us(sign, args.ops, args.runs)
+            v_best, v_med = per_op_us(verify, args.ops, args.runs)
+            ok = "met" if max(s_best, v_best) <= TARGET_US else "MISSED"
+            print(f"{name:<14}{size:>7}{s_best:>11.1f}{s_med:>9.1f}{v_best:>13.1f}{v_med:>9.1f}  {ok}")
+
+
+if __name__ == "__main__":
+    main()

@@ -124,6 +124,26 @@ def test_a_rival_trusted_set_is_found():
         assert (found == ~d.attackers[t]).all(axis=1).any(), t  # the true honest set
 
 
+def test_a_failing_set_that_one_swap_repairs_is_repaired():
+    """A detector that trusted a spoofed drone and left an honest one out gets an alarm from
+    its own tests; finish swaps the two back (the swap passes) instead of raising it."""
+    cfg = build_config("realistic", n=(13,), f=(3,), trials=40)
+    d = draw(cfg, np.random.default_rng(4), 40, 13, 3)
+    b = snapshot_batch(cfg, d)
+    noise = NoiseModel.of(b, IntegrityParams(), "test")
+    right = finish(b, IntegrityParams(), noise, ~d.attackers)
+    rows = np.flatnonzero(right.status == "ok")[:5]
+    assert rows.size == 5
+    sub = b.subset(rows)
+    wrong = ~d.attackers[rows]
+    for k, t in enumerate(rows):
+        spoofed, honest = np.flatnonzero(d.attackers[t])[0], np.flatnonzero(~d.attackers[t])[0]
+        wrong[k, [spoofed, honest]] = [True, False]
+    v = finish(sub, IntegrityParams(), noise, wrong)
+    assert (v.faulty == d.attackers[rows]).all()
+    assert (v.status == "ok").all()
+
+
 @pytest.mark.parametrize("det", NEW)
 def test_two_equally_good_partitions_are_not_ok(det):
     """Both trials are ok and 40-63 m off without the rival check."""

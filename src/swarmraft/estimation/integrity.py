@@ -386,11 +386,15 @@ def finish(
     which the assessment can only make more serious. The flagged drones are ``faulty``
     (default: those outside the trusted set).
 
-    A verdict that would be ``ok`` is then checked against rival explanations
-    (`rivals.rival_sets`): if another trusted set with at most ``f_max`` drones left out
-    passes the tests and places some drone beyond its protection level, the data do not
-    decide between them. The verdict becomes ``unidentifiable``, estimated from the drones
-    both sets trust, with only the drones outside both flagged."""
+    Two checks use the swaps of `rivals.rival_sets` (a flagged drone trusted instead of one
+    of the trusted drones that fit worst):
+
+    - repair: a set that fails its residual tests (exclusion could not undo a wrong
+      exclusion) is replaced by its best passing swap, if one passes;
+    - rivals: a verdict that would be ``ok`` has a rival if a swap also passes the tests and
+      places some drone beyond its protection level: the data do not decide between them.
+      The verdict becomes ``unidentifiable``, estimated from the drones both sets trust,
+      with only the drones outside both flagged."""
     reported = np.asarray(batch.reported, float)
     ranges = np.asarray(batch.ranges, float)
     prior = None if batch.prior is None else np.asarray(batch.prior, float)
@@ -399,6 +403,14 @@ def finish(
     status = np.full(T, "ok", dtype=object) if status is None else np.asarray(status, dtype=object).copy()
     trusted = trusted.copy()
     est, a = _judge(reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts)
+    repaired = _repaired_rows(est, a, status, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
+    if repaired is not None:
+        rows, sets = repaired
+        trusted[rows] = sets
+        faulty[rows] = ~sets
+        est, a = _rejudged(
+            est, a, rows, reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts
+        )
     final = worst_status(a.status, status)
     rival = _rival_rows(est, a, final, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
     if rival is not None:
@@ -406,11 +418,9 @@ def finish(
         status[rows] = "unidentifiable"
         faulty[rows] = ~trusted[rows] & ~other
         trusted[rows] &= other
-        sub = tuple(s[rows] for s in starts)
-        pr = None if prior is None else prior[rows]
-        _, b = _judge(reported[rows], ranges[rows], trusted[rows], noise, p, pr, batch.prior_sigma, sub)
-        fields = Assessment.__dataclass_fields__
-        a = Assessment(*(_merged(getattr(a, k), getattr(b, k), rows) for k in fields))
+        est, a = _rejudged(
+            est, a, rows, reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts
+        )
         final = worst_status(a.status, status)
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
@@ -433,6 +443,29 @@ def _merged(whole: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray
     return out
 
 
+def _rejudged(
+    est: Estimate,
+    a: Assessment,
+    rows: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p: IntegrityParams,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+    starts: tuple[np.ndarray, ...],
+) -> tuple[Estimate, Assessment]:
+    """``est`` and ``a`` with the trials ``rows`` judged again with their new trusted sets."""
+    pr = None if prior is None else prior[rows]
+    sub = tuple(s[rows] for s in starts)
+    e, b = _judge(reported[rows], ranges[rows], trusted[rows], noise, p, pr, prior_sigma, sub)
+    return (
+        Estimate(*(_merged(getattr(est, k), getattr(e, k), rows) for k in Estimate.__dataclass_fields__)),
+        Assessment(*(_merged(getattr(a, k), getattr(b, k), rows) for k in Assessment.__dataclass_fields__)),
+    )
+
+
 def _judge(
     reported: np.ndarray,
     ranges: np.ndarray,
@@ -447,6 +480,34 @@ def _judge(
     window = float(chi2_quantile(1 - p.p_fa, 1))
     est = robust_estimate(reported, ranges, trusted, noise, prior, prior_sigma, starts, window=window)
     return est, assess(est, reported, ranges, trusted, noise, p, prior, prior_sigma)
+
+
+def _repaired_rows(
+    est: Estimate,
+    a: Assessment,
+    status: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    noise: NoiseModel,
+    p: IntegrityParams,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Trials (indices) whose trusted set fails its residual test while a swap passes, and
+    the passing swap of lowest chi-square for each (len(rows), n); None if there are none."""
+    rows = np.flatnonzero((a.alarm_cause == "residual test") & (status != "alarm") & (~trusted).any(axis=1))
+    if not rows.size:
+        return None
+    r = rival_sets(est.x, reported, ranges, trusted, noise, p.p_fa, rows, prior, prior_sigma)
+    cost = np.where(r.passed, r.cost, np.inf)
+    order = np.lexsort((cost, r.owner))  # by trial, then cost
+    owners, first = np.unique(r.owner[order], return_index=True)
+    best = order[first]
+    good = np.isfinite(cost[best])
+    if not good.any():
+        return None
+    return owners[good], r.trusted[best[good]]
 
 
 def _rival_rows(

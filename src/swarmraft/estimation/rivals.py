@@ -38,6 +38,7 @@ class Rivals:
     trusted: np.ndarray
     passed: np.ndarray
     x: np.ndarray
+    cost: np.ndarray  # (B,) the chi-square of each rival's fit
 
 
 def rival_sets(
@@ -81,4 +82,4 @@ def rival_sets(
         prior_sigma=prior_sigma,
     )
     _, gnss_q, total, dof = residual_statistics(xs, rep, rng_, sets, noise)
-    return Rivals(owner, sets, tests_pass(gnss_q, total, dof, sets, p_fa), xs)
+    return Rivals(owner, sets, tests_pass(gnss_q, total, dof, sets, p_fa), xs, total)

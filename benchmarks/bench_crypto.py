@@ -17,13 +17,13 @@ heartbeat and an append of one 1,400-byte entry, against the same 150 us.
 Libraries: `cryptography` (already a dependency, OpenSSL underneath) and PyNaCl (libsodium),
 measured only if it is importable (``.venv/bin/pip install pynacl``).
 
-Decision (three runs on the shared 2-core machine while another job kept both cores busy,
-numbers in docs/net.md): `cryptography` verifies in 136-192 us (median of a run), at or over
-the target in 5 of 6 run medians; PyNaCl in 97-110 us, under it every time, and signs about
-as fast or faster. So `swarmraft.net.auth` uses PyNaCl (a dependency since this measurement)
-for datagram signatures. Both are RFC 8032 Ed25519 over the same bytes with the same 32-byte
-keys, so a key file serves both, and the reports' own signatures (`protocol.signing`, with
-`cryptography`) verify against the same keys.
+Decision (five runs on the shared 2-core machine while another job kept both cores busy,
+numbers in docs/net.md): `cryptography`'s verify run medians are 136-192 us, over the target in
+8 of 10; PyNaCl's 73-114 us, never over, and it signs about as fast or faster. So
+`swarmraft.net.auth` uses PyNaCl (a dependency since this measurement) for datagram signatures.
+Both are RFC 8032 Ed25519 over the same bytes with the same 32-byte keys, so a key file serves
+both, and the reports' own signatures (`protocol.signing`, with `cryptography`) verify against
+the same keys.
 
 Run: .venv/bin/python benchmarks/bench_crypto.py [--ops 2000] [--runs 7]
 """

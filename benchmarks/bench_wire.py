@@ -13,7 +13,7 @@ The msgpack decoder here only rebuilds the Message; it does not check types or r
 
 Decision (numbers in docs/net.md): both codecs meet the target by a factor of 3 or more and
 cost a few microseconds against about 100 us of signature checking per datagram. msgpack is
-about 1 us faster on small messages and writes 20-35 fewer bytes (out of 100-140 with the
+about 1 us faster on small messages and writes 27-35 fewer bytes (out of 100-140 with the
 84-byte header and signature), and about 2x faster on large appends without any checking;
 that is no measured reason to add a dependency and a second layer of type checks, so
 `swarmraft.net.wire` uses `struct`.

@@ -14,16 +14,15 @@ Then the whole path of one datagram with the library chosen: `Signer.seal` (enco
 sign) and `Verifier.check` (parse, replay window, verify, decode, sender checks), for a
 heartbeat and an append of one 1,400-byte entry, against the same 150 us.
 
-Libraries: `cryptography` (already a dependency, OpenSSL underneath) and PyNaCl (libsodium),
-measured only if it is importable (``.venv/bin/pip install pynacl``).
+Libraries: PyNaCl (libsodium, the dependency) and `cryptography` (OpenSSL underneath), measured
+only if it is importable (``.venv/bin/pip install cryptography``).
 
 Decision (five runs on the shared 2-core machine while another job kept both cores busy,
 numbers in docs/net.md): `cryptography`'s verify run medians are 136-192 us, over the target in
-8 of 10; PyNaCl's 73-114 us, never over, and it signs about as fast or faster. So
-`swarmraft.net.auth` uses PyNaCl (a dependency since this measurement) for datagram signatures.
-Both are RFC 8032 Ed25519 over the same bytes with the same 32-byte keys, so a key file serves
-both, and the reports' own signatures (`protocol.signing`, with `cryptography`) verify against
-the same keys.
+8 of 10; PyNaCl's 73-114 us, never over, and it signs about as fast or faster. So PyNaCl
+signs both the datagrams (`swarmraft.net.auth`) and the reports (`protocol.signing`), and
+`cryptography` is no longer a dependency. Both are RFC 8032 Ed25519 (deterministic: the same
+32-byte seed and message give the same signature bytes in either library).
 
 Run: .venv/bin/python benchmarks/bench_crypto.py [--ops 2000] [--runs 7]
 """
@@ -36,7 +35,7 @@ import statistics
 import time
 from collections.abc import Callable
 
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from nacl.signing import SigningKey
 
 from swarmraft.net.auth import Signer, Verifier, public_key
 from swarmraft.raft.types import Entry, Message, MsgType
@@ -56,18 +55,18 @@ def per_op_us(fn: Callable[[], object], ops: int, runs: int) -> tuple[float, flo
     return min(times), statistics.median(times)
 
 
-def cryptography_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]]:
+def cryptography_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]] | None:
+    try:
+        from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+    except ImportError:
+        return None
     key = Ed25519PrivateKey.from_private_bytes(os.urandom(32))
     pub = key.public_key()
     sig = key.sign(msg)
     return (lambda: key.sign(msg)), (lambda: pub.verify(sig, msg))
 
 
-def pynacl_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]] | None:
-    try:
-        from nacl.signing import SigningKey
-    except ImportError:
-        return None
+def pynacl_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]]:
     key = SigningKey(os.urandom(32))
     pub = key.verify_key
     sig = key.sign(msg).signature
@@ -101,7 +100,7 @@ def main() -> None:
     print(f"target: sign and verify <= {TARGET_US:.0f} us")
     head = f"{'library':<14}{'bytes':>7}{'sign best':>11}{'median':>9}{'verify best':>13}{'median':>9}"
     print(head + "  target")
-    for name, make in (("cryptography", cryptography_ops), ("pynacl", pynacl_ops)):
+    for name, make in (("pynacl", pynacl_ops), ("cryptography", cryptography_ops)):
         for size in SIZES:
             ops = make(os.urandom(size))
             if ops is None:

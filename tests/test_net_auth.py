@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from nacl.signing import SigningKey, VerifyKey
 
 from swarmraft.net import wire
 from swarmraft.net.auth import (
@@ -80,13 +81,13 @@ def test_each_sender_has_its_own_sequence_space():
     assert v.counters["accepted"] == 3
 
 
-def test_the_key_files_of_both_libraries_agree():
-    """PyNaCl signs datagrams, `cryptography` signs reports: one 32-byte seed serves both."""
-    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
-    from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
-
-    key = Ed25519PrivateKey.from_private_bytes(SEEDS[4])
-    assert key.public_key().public_bytes(Encoding.Raw, PublicFormat.Raw) == PUBLIC[4]
+def test_a_drones_report_key_and_datagram_key_are_one_key():
+    """protocol.signing signs reports, net.auth datagrams: one 32-byte seed serves both."""
+    keys = Keyring.generate(5, np.random.default_rng(0))
+    seed = np.random.default_rng(0).bytes(32)  # drone 0's seed, as Keyring.generate draws it
+    assert bytes(keys.public[0]) == bytes(SigningKey(seed).verify_key)
+    r = keys.sign(Report(9, 0, np.array([1.0, 2.0, 3.0]), "gnss", np.arange(5.0), None))
+    VerifyKey(bytes(keys.public[0])).verify(r.body(), r.signature)  # raises if it does not hold
 
 
 # --- what is dropped -----------------------------------------------------------------------

@@ -10,17 +10,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmraft.estimation import SnapshotBatch
-from swarmraft.estimation.calibration import calibrate
-from swarmraft.protocol import Keyring, ProtocolConfig, Report, SwarmDrone
+from swarmraft.protocol import Keyring, Report, SwarmDrone
 from swarmraft.raft import Entry, EntryKind
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario
-from swarmraft.world import GaussMarkov, UWBRanging
-from swarmraft.world.ins import InsDrift, ins_grade, ins_sigma
-from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
-from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
+from swarmraft.sim.sensing import ScenarioWorld
+from swarmraft.world.ins import InsDrift, ins_sigma
+from swarmraft.world.motion import Trajectory
 
 
 @dataclass
@@ -60,39 +57,17 @@ class Mission:
     def __init__(self, sc: Scenario) -> None:
         self.sc = sc
         n, S = sc.drones, sc.steps + 1
-        seeds = np.random.SeedSequence(sc.seed).spawn(6)
-        rng_motion, rng_gnss, rng_ins, rng_att, rng_keys, self.rng_range = (
-            np.random.default_rng(s) for s in seeds
+        # Every random draw of the world, in the order the mission has always made them
+        # (shared with the networked runtime: sim.sensing).
+        self.world = w = ScenarioWorld.build(sc)
+        self.traj: Trajectory = w.traj
+        self.gnss_err, self.grade, self.drift, self.timeline, self.uwb = (
+            w.gnss_err,
+            w.grade,
+            w.drift,
+            w.timeline,
+            w.uwb,
         )
-        if sc.motion.kind == "formation":
-            wp = None if sc.motion.waypoints is None else np.array(sc.motion.waypoints, float)
-            self.traj: Trajectory = formation_flight(
-                rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.spacing, sc.motion.speed, wp
-            )
-        else:
-            self.traj = static_swarm(rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.area_size)
-        self.gnss_err = GaussMarkov(sc.gnss.sigma_h, sc.gnss.sigma_v, sc.gnss.tau_s, sc.dt_s).sequence(
-            rng_gnss, S, n
-        )
-        self.grade = ins_grade(sc.ins.grade)
-        self.drift = InsDrift.draw(rng_ins, n, self.grade)
-        spoofs = [
-            Spoof(
-                s.kind,
-                tuple(d - 1 for d in s.drones),
-                s.start_s,
-                s.end_s,
-                s.magnitude,
-                s.rate,
-                tuple(p - 1 for p in s.pivots),
-                s.angle_deg,
-                s.tamper_ranges,
-            )
-            for s in sc.spoof
-        ]
-        outages = [Outage(tuple(d - 1 for d in o.drones), o.start_s, o.end_s) for o in sc.outage]
-        self.timeline = AttackTimeline.build(rng_att, spoofs, outages)
-        self.uwb = UWBRanging(sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob)
         link = LinkModel(
             tuple(sc.network.delay_ms), sc.network.loss, sc.network.duplicate, sc.network.reorder
         )
@@ -105,33 +80,11 @@ class Mission:
             network=link,
             on_apply=self._on_apply,
         )
-        window = sc.protocol.innovation_window_s
-        self.window_steps = max(1, int(round(window / sc.dt_s)))
-        # An honest innovation over the window: the Gauss-Markov GNSS error's change plus the
-        # INS drift of a fresh integration over the window, per axis (horizontal, vertical).
-        gm = np.sqrt(2 * (1 - np.exp(-window / sc.gnss.tau_s)))
-        drift_axis = ins_sigma(self.grade, window) / np.sqrt(3)
-        self.innovation_sigma = (
-            float(np.hypot(gm * sc.gnss.sigma_h, drift_axis)),
-            float(np.hypot(gm * sc.gnss.sigma_v, drift_axis)),
-        )
-        params = dict(sc.protocol.detector_params)
-        self.calibration: dict[str, float] = {}
-        if sc.protocol.detector == "paper" and not {"tau", "epsilon"} & set(params):
-            noisy = sc.gnss.sigma_h > 0 or sc.gnss.sigma_v > 0 or sc.ranging.sigma > 0
-            if noisy:  # the paper's thresholds from honest snapshots of this world (III.E)
-                self.calibration = self._calibrate(np.random.default_rng(seeds[0].spawn(1)[0]))
-                params.update(tau=self.calibration["tau"], epsilon=self.calibration["epsilon"])
-        self.pcfg = ProtocolConfig(
-            n=n,
-            detector=sc.protocol.detector,
-            detector_params=params,
-            gnss_sigma=(sc.gnss.sigma_h, sc.gnss.sigma_v),
-            range_sigma=sc.ranging.sigma,
-            innovation_gate=sc.protocol.innovation_gate or None,
-            innovation_sigma=self.innovation_sigma,
-        )
-        self.keys = Keyring.generate(n, rng_keys)
+        self.window_steps = w.window_steps
+        self.innovation_sigma = w.innovation_sigma
+        self.calibration = w.calibration
+        self.pcfg = w.protocol
+        self.keys = Keyring.generate(n, w.rng_keys)
         self.drones = [SwarmDrone(i, self.pcfg, self.keys) for i in range(n)]
         # INS state: the last position it was aligned to (time, position); it then integrates
         # the true motion plus its drift.
@@ -140,18 +93,6 @@ class Mission:
         self.log = self._empty_log(S, n)
         self.sent_to: dict[int, int | None] = {}
         self._first_apply: dict[int, float] = {}
-
-    def _calibrate(self, rng: np.random.Generator, samples: int = 400) -> dict[str, float]:
-        """Calibrate the paper's tau and epsilon on honest snapshots drawn from the mission's
-        own geometry and noise (GNSS white with the scenario's sigmas, UWB ranges)."""
-        sc = self.sc
-        ks = rng.integers(0, len(self.traj.t), samples)
-        truth = self.traj.positions[ks]
-        sig = np.array([sc.gnss.sigma_h, sc.gnss.sigma_h, sc.gnss.sigma_v])
-        reported = truth + rng.standard_normal(truth.shape) * sig
-        ranges = self.uwb.measure(rng, truth)
-        cal = calibrate(SnapshotBatch(reported, ranges))
-        return {"tau": cal.tau, "epsilon": cal.epsilon}
 
     def _empty_log(self, S: int, n: int) -> MissionLog:
         nan3 = np.full((S, n, 3), np.nan)
@@ -185,24 +126,17 @@ class Mission:
     # -- sensing and reporting --------------------------------------------------------------
     def _ins(self, k: int) -> np.ndarray:
         """Each drone's INS estimate at step k: aligned at its base, then dead reckoning."""
-        t = self.traj.t[k]
-        kb = np.minimum(np.round(self.ins_base_t / self.sc.dt_s).astype(int), len(self.traj.t) - 1)
-        moved = self.traj.positions[k] - self.traj.positions[kb, np.arange(self.sc.drones)]
-        return self.ins_base_pos + moved + self.drift.error(t - self.ins_base_t)
+        return self.world.ins_estimate(k, self.ins_base_t, self.ins_base_pos)
 
     def _step(self, k: int) -> None:
         sc, n, log = self.sc, self.sc.drones, self.log
+        w = self.world
         t = self.traj.t[k]
         truth = self.traj.positions[k]
         honest = truth + self.gnss_err[k]
-        fix, has_fix, spoofed = self.timeline.gnss(t, truth, honest)
+        fix, has_fix, spoofed = w.fix[k], w.has_fix[k], w.spoofed[k]
         ins = self._ins(k)
-        ranges = self.uwb.measure(self.rng_range, truth[None])[0]
-        tamper = self.timeline.tampering(t)
-        if tamper.size:
-            shown = np.where(has_fix[:, None], fix, ins)
-            fake = np.linalg.norm(shown[:, None] - shown[None], axis=2)
-            ranges[tamper] = np.where(np.isnan(ranges[tamper]), np.nan, fake[tamper])
+        ranges = w.measured_ranges(k, ins)
         self._rows[k] = ranges
         log.gnss[k] = np.where(has_fix[:, None], fix, np.nan)
         log.honest_gnss[k] = honest
@@ -224,20 +158,7 @@ class Mission:
         self.cluster.loop.after(dl, self._deadline, k)
 
     def _innovation(self, k: int, i: int) -> np.ndarray | None:
-        """GNSS-minus-INS innovation over the window: how far the drone's GNSS fix moved in
-        the last window minus how far its INS says it moved (true motion plus the drift of
-        integrating over the window). None without both fixes."""
-        base = k - self.window_steps
-        if base < 0:
-            return None
-        now, then = self.log.gnss[k, i], self.log.gnss[base, i]
-        if not (np.isfinite(now).all() and np.isfinite(then).all()):
-            return None
-        w = self.traj.t[k] - self.traj.t[base]
-        ins_moved = (
-            self.traj.positions[k, i] - self.traj.positions[base, i] + self.drift.error(np.full(1, w))[0]
-        )
-        return (now - then) - ins_moved
+        return self.world.innovation(k, i)
 
     def _send_report(self, node: int, report: Report) -> None:
         lead = self.cluster.nodes[node].lead if self.cluster.nodes.get(node) else None

@@ -1,0 +1,185 @@
+"""A scenario's world as its drones sense it, drawn from the scenario's seed: trajectories, GNSS
+errors and attacks, INS drift, UWB ranges, and the protocol settings calibrated on that world.
+
+`ScenarioWorld.build(sc)` makes every random draw the simulator's mission makes, in the same
+order, so the simulator (`sim.mission`) and each process of a networked swarm (`net.node`)
+compute the same world from the same scenario. Everything here is a pure function of the
+step k, except the INS estimate, which also depends on where the drone was last aligned
+(the host keeps that). No clock, no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmraft.estimation import SnapshotBatch
+from swarmraft.estimation.calibration import calibrate
+from swarmraft.protocol import ProtocolConfig
+from swarmraft.sim.scenario import Scenario
+from swarmraft.world import GaussMarkov, UWBRanging
+from swarmraft.world.ins import InsDrift, InsGrade, ins_grade, ins_sigma
+from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
+from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
+
+
+@dataclass
+class ScenarioWorld:
+    """Step k's world for S = steps + 1 steps and n drones (indexes 0..n-1)."""
+
+    sc: Scenario
+    traj: Trajectory
+    gnss_err: np.ndarray  # (S, n, 3) Gauss-Markov receiver error
+    grade: InsGrade
+    drift: InsDrift
+    timeline: AttackTimeline
+    uwb: UWBRanging
+    fix: np.ndarray  # (S, n, 3) receiver output (spoofed where spoofed), whether or not it has a fix
+    has_fix: np.ndarray  # (S, n) bool: False in an outage
+    spoofed: np.ndarray  # (S, n) bool
+    ranges: np.ndarray  # (S, n, n) measured ranges before any tampering; row i: drone i's
+    window_steps: int  # the innovation window in steps
+    innovation_sigma: tuple[float, float]  # (horizontal, vertical) of an honest innovation, m
+    calibration: dict[str, float]  # the paper detector's tau and epsilon, when calibrated here
+    protocol: ProtocolConfig
+    rng_keys: np.random.Generator  # the simulator's report keys are drawn from it
+
+    @classmethod
+    def build(cls, sc: Scenario) -> ScenarioWorld:
+        n, S = sc.drones, sc.steps + 1
+        seeds = np.random.SeedSequence(sc.seed).spawn(6)
+        rng_motion, rng_gnss, rng_ins, rng_att, rng_keys, rng_range = (
+            np.random.default_rng(s) for s in seeds
+        )
+        if sc.motion.kind == "formation":
+            wp = None if sc.motion.waypoints is None else np.array(sc.motion.waypoints, float)
+            traj = formation_flight(
+                rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.spacing, sc.motion.speed, wp
+            )
+        else:
+            traj = static_swarm(rng_motion, n, sc.duration_s, sc.dt_s, sc.motion.area_size)
+        gnss_err = GaussMarkov(sc.gnss.sigma_h, sc.gnss.sigma_v, sc.gnss.tau_s, sc.dt_s).sequence(
+            rng_gnss, S, n
+        )
+        grade = ins_grade(sc.ins.grade)
+        drift = InsDrift.draw(rng_ins, n, grade)
+        spoofs = [
+            Spoof(
+                s.kind,
+                tuple(d - 1 for d in s.drones),
+                s.start_s,
+                s.end_s,
+                s.magnitude,
+                s.rate,
+                tuple(p - 1 for p in s.pivots),
+                s.angle_deg,
+                s.tamper_ranges,
+            )
+            for s in sc.spoof
+        ]
+        outages = [Outage(tuple(d - 1 for d in o.drones), o.start_s, o.end_s) for o in sc.outage]
+        timeline = AttackTimeline.build(rng_att, spoofs, outages)
+        uwb = UWBRanging(sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob)
+        # In step order, as the simulator draws them (an area spoof fixes its point at its first step).
+        fix, has_fix, spoofed = np.empty((S, n, 3)), np.empty((S, n), bool), np.empty((S, n), bool)
+        ranges = np.empty((S, n, n))
+        for k in range(S):
+            truth = traj.positions[k]
+            fix[k], has_fix[k], spoofed[k] = timeline.gnss(traj.t[k], truth, truth + gnss_err[k])
+            ranges[k] = uwb.measure(rng_range, truth[None])[0]
+        window = sc.protocol.innovation_window_s
+        # An honest innovation over the window: the Gauss-Markov GNSS error's change plus the
+        # INS drift of a fresh integration over the window, per axis (horizontal, vertical).
+        gm = np.sqrt(2 * (1 - np.exp(-window / sc.gnss.tau_s)))
+        drift_axis = ins_sigma(grade, window) / np.sqrt(3)
+        innovation_sigma = (
+            float(np.hypot(gm * sc.gnss.sigma_h, drift_axis)),
+            float(np.hypot(gm * sc.gnss.sigma_v, drift_axis)),
+        )
+        params = dict(sc.protocol.detector_params)
+        calibration: dict[str, float] = {}
+        if sc.protocol.detector == "paper" and not {"tau", "epsilon"} & set(params):
+            noisy = sc.gnss.sigma_h > 0 or sc.gnss.sigma_v > 0 or sc.ranging.sigma > 0
+            if noisy:  # the paper's thresholds from honest snapshots of this world (III.E)
+                calibration = _calibrate(sc, traj, uwb, np.random.default_rng(seeds[0].spawn(1)[0]))
+                params.update(tau=calibration["tau"], epsilon=calibration["epsilon"])
+        pcfg = ProtocolConfig(
+            n=n,
+            detector=sc.protocol.detector,
+            detector_params=params,
+            gnss_sigma=(sc.gnss.sigma_h, sc.gnss.sigma_v),
+            range_sigma=sc.ranging.sigma,
+            innovation_gate=sc.protocol.innovation_gate or None,
+            innovation_sigma=innovation_sigma,
+        )
+        return cls(
+            sc,
+            traj,
+            gnss_err,
+            grade,
+            drift,
+            timeline,
+            uwb,
+            fix,
+            has_fix,
+            spoofed,
+            ranges,
+            max(1, int(round(window / sc.dt_s))),
+            innovation_sigma,
+            calibration,
+            pcfg,
+            rng_keys,
+        )
+
+    def gnss_output(self, k: int) -> np.ndarray:
+        """(n, 3) receiver output at step k, nan in an outage."""
+        return np.where(self.has_fix[k][:, None], self.fix[k], np.nan)
+
+    def ins_estimate(self, k: int, base_t: np.ndarray, base_pos: np.ndarray) -> np.ndarray:
+        """(n, 3) each drone's INS estimate at step k: aligned to ``base_pos`` (n, 3) at times
+        ``base_t`` (n,) s, then dead reckoning (the true motion plus its drift)."""
+        t = self.traj.t[k]
+        kb = np.minimum(np.round(base_t / self.sc.dt_s).astype(int), len(self.traj.t) - 1)
+        moved = self.traj.positions[k] - self.traj.positions[kb, np.arange(self.sc.drones)]
+        return base_pos + moved + self.drift.error(t - base_t)
+
+    def measured_ranges(self, k: int, ins: np.ndarray) -> np.ndarray:
+        """(n, n) step k's ranges, row i measured by drone i; a drone that tampers with its
+        ranges reports the distances its fake position (its fix, or ``ins`` (n, 3) without a
+        fix) implies."""
+        ranges = self.ranges[k].copy()
+        tamper = self.timeline.tampering(self.traj.t[k])
+        if tamper.size:
+            shown = np.where(self.has_fix[k][:, None], self.fix[k], ins)
+            fake = np.linalg.norm(shown[:, None] - shown[None], axis=2)
+            ranges[tamper] = np.where(np.isnan(ranges[tamper]), np.nan, fake[tamper])
+        return ranges
+
+    def innovation(self, k: int, i: int) -> np.ndarray | None:
+        """GNSS-minus-INS innovation of drone i over the window: how far its GNSS fix moved in
+        the last window minus how far its INS says it moved (true motion plus the drift of
+        integrating over the window). None without both fixes."""
+        base = k - self.window_steps
+        if base < 0 or not (self.has_fix[k, i] and self.has_fix[base, i]):
+            return None
+        now, then = self.fix[k, i], self.fix[base, i]
+        if not (np.isfinite(now).all() and np.isfinite(then).all()):
+            return None
+        w = self.traj.t[k] - self.traj.t[base]
+        ins_moved = (
+            self.traj.positions[k, i] - self.traj.positions[base, i] + self.drift.error(np.full(1, w))[0]
+        )
+        return (now - then) - ins_moved
+
+
+def _calibrate(sc: Scenario, traj: Trajectory, uwb: UWBRanging, rng: np.random.Generator, samples: int = 400):
+    """The paper's tau and epsilon calibrated on honest snapshots drawn from the mission's own
+    geometry and noise (GNSS white with the scenario's sigmas, UWB ranges)."""
+    ks = rng.integers(0, len(traj.t), samples)
+    truth = traj.positions[ks]
+    sig = np.array([sc.gnss.sigma_h, sc.gnss.sigma_h, sc.gnss.sigma_v])
+    reported = truth + rng.standard_normal(truth.shape) * sig
+    ranges = uwb.measure(rng, truth)
+    cal = calibrate(SnapshotBatch(reported, ranges))
+    return {"tau": cal.tau, "epsilon": cal.epsilon}

@@ -70,11 +70,13 @@ class MemoryStorage:
 
 class SQLiteStorage:
     """Durable storage in one SQLite file (WAL, synchronous=FULL): a process killed with
-    SIGKILL after ``save`` returned restarts with that term, vote and log."""
+    SIGKILL after ``save`` returned restarts with that term, vote and log.
+    ``check_same_thread=False`` lets a host call it from more than one thread (one at a time:
+    e.g. ``save`` in a worker thread so that an event loop does not wait on the disk)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, check_same_thread: bool = True) -> None:
         self.path = Path(path)
-        self._db = sqlite3.connect(self.path, isolation_level=None)
+        self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=check_same_thread)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=FULL")
         self._db.execute(

@@ -1,0 +1,499 @@
+"""One drone of a networked swarm: an asyncio host that drives one `raft.RaftNode` and one
+`protocol.SwarmDrone`, unchanged, from the wall clock and UDP datagrams, in the simulator's
+driving order (`sim.runtime`, `sim.mission`):
+
+- every ``tick_ms``: ``node.tick()``; for each datagram the `Verifier` accepts, ``node.step``
+  (a Raft message) or ``drone.receive`` (a report, on the leader); hostile datagrams are
+  dropped and counted, never raised;
+- then every Ready in order: persist hard state and entries to the drone's `SQLiteStorage`
+  (in a worker thread; the node is not touched until the write returns, so nothing that
+  depends on it is sent before), send the messages, apply the committed entries, ``advance``;
+- every step k (at ``start_unix_s + k * step_s``): the drone's report from the scenario's world
+  (`sim.sensing.ScenarioWorld`, the same draws every process makes from the swarm file) to the
+  leader it knows; a resend at half the deadline if the leader changed; the leader verifies
+  at the deadline (or once every recent drone reported) and proposes the record;
+- every applied step is one JSON line (flushed) in ``drone-<id>.steps.jsonl``; starts, role
+  changes and the final counters go to ``drone-<id>.events.jsonl``.
+
+SIGTERM and SIGINT stop it cleanly: the write in flight finishes (nothing persisted or
+committed is lost), the files are flushed and closed, the socket and the database closed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import logging
+import os
+import random
+import signal
+import time
+import tomllib
+from collections import Counter
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from nacl.signing import SigningKey, VerifyKey
+from pydantic import ValidationError
+
+from swarmraft.estimation.registry import one_line
+from swarmraft.net import wire
+from swarmraft.net.auth import Accepted, Signer, Verifier, public_key
+from swarmraft.net.keys import KeyFileError, load_private_key, load_public_keys
+from swarmraft.net.swarmfile import SwarmFile, load_swarm
+from swarmraft.net.transport import Address, UDPTransport
+from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
+from swarmraft.raft import Entry, EntryKind, Message, NotLeader, RaftConfig, RaftNode, Role, SQLiteStorage
+from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
+from swarmraft.sim.sensing import ScenarioWorld
+
+_logger = logging.getLogger(__name__)
+
+#: After the last step's deadline, a node keeps running this long so the last records commit.
+END_GRACE_S = 1.5
+#: Records older than this many steps when applied do not realign the INS (replayed after a restart).
+REALIGN_STEPS = 5
+
+
+class NodeConfigError(ValueError):
+    """The swarm file, scenario or keys do not fit this drone; one line."""
+
+
+def load_node_scenario(swarm: SwarmFile) -> Scenario:
+    """The swarm's scenario with its seed and step overrides; one-line NodeConfigError if bad."""
+    path = find_scenario(swarm.scenario)
+    if not path.is_file():
+        raise NodeConfigError(
+            f"scenario: no file {path} and no shipped scenario of that name "
+            f"(shipped: {', '.join(shipped_scenarios())})"
+        )
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise NodeConfigError(f"scenario {path}: unreadable or not TOML ({exc})") from None
+    if swarm.seed is not None:
+        data["seed"] = swarm.seed
+    if swarm.step_s is not None:
+        data["dt_s"] = swarm.step_s
+    data.setdefault("raft", {})["tick_ms"] = swarm.tick_ms
+    try:
+        sc = Scenario(**data)
+    except ValidationError as exc:
+        raise NodeConfigError(f"scenario {path.name}: {one_line(exc, '')}") from None
+    if sc.drones != len(swarm.drones):
+        raise NodeConfigError(
+            f"scenario {path.name}: {sc.drones} drones, the swarm file lists {len(swarm.drones)}"
+        )
+    return sc
+
+
+def entries_per_append(n: int) -> int:
+    """How many records of an n-drone swarm fit one MsgApp datagram (at most 64): a MsgApp
+    must fit `wire.MAX_PAYLOAD`."""
+    z = np.zeros(n)
+    rec = StepRecord(0, 0, np.zeros((n, 3)), z > 0, z > 0, "unidentifiable", "x" * 32, "0" * 32, z, z)
+    per_entry = len(rec.encode()) + 21 + 64  # entry header, and room for longer names
+    return max(1, min(64, (wire.MAX_PAYLOAD - 54) // per_entry))
+
+
+def record_hash(data: bytes) -> str:
+    """A committed record's identity across nodes: its bytes' SHA-256 (first 16 hex digits)."""
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def _ids(mask: np.ndarray) -> list[int]:
+    return [int(i) + 1 for i in np.flatnonzero(mask)]
+
+
+def _jsonable(x: np.ndarray) -> list:
+    return [[None if not np.isfinite(v) else round(float(v), 4) for v in row] for row in np.atleast_2d(x)]
+
+
+class DroneHost:
+    """Drone ``drone_id`` of ``swarm``; ``await run()`` until the scenario ends or a stop."""
+
+    def __init__(self, swarm: SwarmFile, drone_id: int) -> None:
+        if drone_id not in swarm.drones:
+            raise NodeConfigError(f"--id: no drone {drone_id} in the swarm file (ids 1..{len(swarm.drones)})")
+        self.swarm, self.id, self.index = swarm, drone_id, drone_id - 1
+        self.entry = swarm.drones[drone_id]
+        self.sc = load_node_scenario(swarm)
+        try:
+            seed = load_private_key(self.entry.key)
+            publics = load_public_keys(swarm.public_keys)
+        except KeyFileError as exc:
+            raise NodeConfigError(str(exc)) from None
+        if publics.get(drone_id) != public_key(seed):
+            raise NodeConfigError(
+                f"{self.entry.key}: not the key {swarm.public_keys} lists for drone {drone_id}"
+            )
+        if missing := sorted(set(swarm.drones) - set(publics)):
+            raise NodeConfigError(f"{swarm.public_keys}: no public key for drone {missing[0]}")
+        self.seed = seed
+        self.publics = publics
+        self.peers = swarm.peers(drone_id)
+        self.out = Path(swarm.out)
+        self.world = ScenarioWorld.build(self.sc)
+        n = self.sc.drones
+        keyring = Keyring(
+            {self.index: SigningKey(seed)}, {i - 1: VerifyKey(publics[i]) for i in swarm.drones}
+        )
+        self.drone = SwarmDrone(self.index, self.world.protocol, keyring)
+        self.raft_config = RaftConfig(
+            id=drone_id,
+            peers=tuple(i for i in sorted(swarm.drones) if i != drone_id),
+            election_tick=self.sc.raft.election_tick,
+            heartbeat_tick=self.sc.raft.heartbeat_tick,
+            max_entries_per_msg=entries_per_append(n),
+        )
+        # INS: aligned at the start to the true position, then to each fresh verified position
+        self.ins_base_t = np.zeros(n)
+        self.ins_base_pos = self.world.traj.positions[0].copy()
+        self.counters: Counter[str] = Counter()
+        self._pending: list[Callable[[], None]] = []
+        self._wake: asyncio.Event | None = None
+        self._stopping = False
+        self._sent_to: dict[int, int | None] = {}
+        self._timers: list[asyncio.TimerHandle] = []
+        self._role: tuple[str, int] | None = None
+        self._written: dict[int, str] = {}  # step -> record hash already in the step file
+
+    # -- files ------------------------------------------------------------------------------
+    @property
+    def storage_path(self) -> Path:
+        return self.out / f"drone-{self.id}.sqlite"
+
+    @property
+    def steps_path(self) -> Path:
+        return self.out / f"drone-{self.id}.steps.jsonl"
+
+    @property
+    def events_path(self) -> Path:
+        return self.out / f"drone-{self.id}.events.jsonl"
+
+    def _read_written_steps(self) -> None:
+        """Steps already in the step file (from before a restart); a torn last line is cut."""
+        if not self.steps_path.exists():
+            return
+        good = 0
+        with self.steps_path.open("rb") as f:
+            for line in f:
+                try:
+                    row = json.loads(line)
+                except ValueError:
+                    break
+                if not line.endswith(b"\n"):
+                    break
+                self._written[row["step"]] = row.get("record") or ""
+                good += len(line)
+        with self.steps_path.open("r+b") as f:
+            f.truncate(good)
+
+    def _event(self, event: str, **fields: Any) -> None:
+        self._events.write(json.dumps({"t": round(time.time(), 4), "event": event, **fields}) + "\n")
+        self._events.flush()
+
+    def _write_step(self, row: dict[str, Any]) -> None:
+        step = row["step"]
+        if step in self._written:
+            if self._written[step] != (row.get("record") or ""):
+                self.counters["replayed_record_differs"] += 1
+                _logger.error("step %d: the record applied again differs from the one written before", step)
+            return
+        self._written[step] = row.get("record") or ""
+        self._steps.write(json.dumps(row) + "\n")
+        self._steps.flush()
+
+    # -- running ----------------------------------------------------------------------------
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._wake = asyncio.Event()
+        self.transport = await UDPTransport.bind(*self.entry.bind_address, self._on_datagram)
+        self._disk = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-disk")
+        self.storage = SQLiteStorage(self.storage_path, check_same_thread=False)
+        self._read_written_steps()
+        self._steps = self.steps_path.open("a")
+        self._events = self.events_path.open("a")
+        self._stopped = loop.create_future()
+        try:
+            hs = self.storage.initial_state()
+            self.node = RaftNode(self.raft_config, self.storage, random.Random(int.from_bytes(os.urandom(8))))
+            # Above every sequence number an earlier run sent: microseconds of the wall clock
+            # (a run sends a few hundred datagrams a second, far fewer than a million).
+            self.signer = Signer(self.id, self.seed, first_seq=time.time_ns() // 1000)
+            self.verifier = Verifier(self.publics, own_id=self.id)
+            self._event(
+                "start",
+                pid=os.getpid(),
+                term=hs.term,
+                vote=hs.vote,
+                commit=hs.commit,
+                last_index=self.storage.last_index(),
+                first_seq=self.signer.next_seq,
+                address=list(self.transport.local_address),
+            )
+            _logger.info(
+                "drone %d up on %s:%d: term %d, log of %d entries, commit %d",
+                self.id,
+                *self.transport.local_address,
+                hs.term,
+                self.storage.last_index(),
+                hs.commit,
+            )
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                loop.add_signal_handler(sig, self.stop, sig.name)
+            driver = asyncio.create_task(self._drive())
+            self._schedule_ticks(loop)
+            self._schedule_steps(loop)
+            self._wake.set()
+            await self._stopped
+            self._stopping = True
+            self._tick.cancel()
+            for t in self._timers:
+                t.cancel()
+            self._wake.set()
+            await driver  # the write in flight, and what it releases, completes
+        finally:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                loop.remove_signal_handler(sig)
+            self.transport.close()
+            await self.transport.wait_closed()
+            self._disk.shutdown(wait=True)
+            self._finish_event()
+            self._steps.close()
+            self._events.close()
+            self.storage.close()
+        return 0
+
+    def _finish_event(self) -> None:
+        node = getattr(self, "node", None)
+        st = node.status if node is not None else None
+        self._event(
+            "stop",
+            reason=self._stop_reason if hasattr(self, "_stop_reason") else "error",
+            term=st.term if st else None,
+            commit=st.commit if st else None,
+            last_index=st.last_index if st else None,
+            last_step=self.drone.state.last_step,
+            verifier={k: v for k, v in self.verifier.counters.items() if v}
+            if hasattr(self, "verifier")
+            else {},
+            transport={"sent": self.transport.sent, "received": self.transport.received},
+            reports_rejected=self.drone.rejected,
+            counters=dict(self.counters),
+        )
+
+    def stop(self, reason: str = "stop") -> None:
+        """Stop at the next turn of the loop (safe from a signal handler)."""
+        if not self._stopped.done():
+            self._stop_reason = reason
+            _logger.info("drone %d stopping (%s)", self.id, reason)
+            self._stopped.set_result(None)
+
+    def _push(self, action: Callable[[], None]) -> None:
+        self._pending.append(action)
+        assert self._wake is not None
+        self._wake.set()
+
+    async def _drive(self) -> None:
+        """Apply queued ticks, messages and proposals to the node, then handle its Readies:
+        persist (awaiting the disk thread; meanwhile new events only queue), send, apply,
+        advance. The simulator's order (`sim.runtime.Cluster._process`)."""
+        loop = asyncio.get_running_loop()
+        node, storage = self.node, self.storage
+        assert self._wake is not None
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            while self._pending or node.has_ready():
+                pending, self._pending = self._pending, []
+                for action in pending:
+                    try:
+                        action()
+                    except Exception:
+                        self.counters["internal_error"] += 1
+                        _logger.exception("drone %d: a node event failed", self.id)
+                while node.has_ready():
+                    rd = node._ready()
+                    if rd.hard_state is not None or rd.entries:
+                        await loop.run_in_executor(self._disk, storage.save, rd.hard_state, rd.entries)
+                    for m in rd.messages:
+                        self._send_raft(m)
+                    for e in rd.committed:
+                        self._apply(e)
+                    node.advance(rd)
+                self._note_role()
+            if self._stopping:
+                return
+
+    def _note_role(self) -> None:
+        now = (str(self.node.role), self.node.term)
+        if now != self._role:
+            self._role = now
+            self._event("role", role=now[0], term=now[1], leader=self.node.lead)
+
+    # -- network ----------------------------------------------------------------------------
+    def _send(self, to: int, obj: Message | Report) -> None:
+        addr = self.peers.get(to)
+        if addr is None:
+            self.counters["no_address"] += 1
+            return
+        try:
+            data = self.signer.seal(obj)
+        except wire.WireError as exc:
+            self.counters["unsendable"] += 1
+            _logger.warning("drone %d: cannot send to %d: %s", self.id, to, exc)
+            return
+        self.transport.send(addr, data)
+
+    def _send_raft(self, m: Message) -> None:
+        self._send(m.to, m)
+
+    def _on_datagram(self, data: bytes, addr: Address) -> None:
+        got = self.verifier.check(data, f"{addr[0]}:{addr[1]}")
+        if not isinstance(got, Accepted):
+            return
+        if isinstance(got.message, Message):
+            m = got.message
+            self._push(lambda: self.node.step(m))
+        else:
+            self._on_report(got.message)
+
+    # -- steps ------------------------------------------------------------------------------
+    def _loop_time_of(self, unix_s: float) -> float:
+        return asyncio.get_running_loop().time() + (unix_s - time.time())
+
+    def _schedule_ticks(self, loop: asyncio.AbstractEventLoop) -> None:
+        period = self.swarm.tick_ms / 1000
+        due = loop.time() + period
+
+        def tick() -> None:
+            nonlocal due
+            self._push(self.node.tick)
+            due += period
+            now = loop.time()
+            if due < now - 5 * period:  # the loop stalled: do not burst the missed ticks
+                self.counters["ticks_late"] += 1
+                due = now + period
+            self._tick = loop.call_at(due, tick)
+
+        self._tick = loop.call_at(due, tick)
+
+    def _schedule_steps(self, loop: asyncio.AbstractEventLoop) -> None:
+        sc = self.sc
+        dt = sc.dt_s
+        k0 = max(0, int(np.ceil((time.time() - self.swarm.start_unix_s) / dt)))
+        dl = sc.protocol.deadline_ms / 1000
+        for k in range(k0, sc.steps + 1):
+            at = self._loop_time_of(self.swarm.start_unix_s + k * dt)
+            self._timers.append(loop.call_at(at, self._step, k))
+            self._timers.append(loop.call_at(at + dl / 2, self._retry, k))
+            self._timers.append(loop.call_at(at + dl, self._deadline, k))
+        end = self._loop_time_of(self.swarm.start_unix_s + sc.steps * dt) + dl + END_GRACE_S
+        self._timers.append(loop.call_at(end, self.stop, "end of scenario"))
+
+    def _report(self, k: int) -> Report | None:
+        w, i = self.world, self.index
+        ins = w.ins_estimate(k, self.ins_base_t, self.ins_base_pos)
+        ranges = w.measured_ranges(k, ins)[i]
+        if w.has_fix[k, i]:
+            pos, source, innov = w.fix[k, i], "gnss", w.innovation(k, i)
+        else:
+            pos, source, innov = ins[i], "ins", None
+        return self.drone.make_report(k, pos, source, ranges, innov)
+
+    def _deliver_report(self, report: Report) -> None:
+        lead = self.node.lead
+        self._sent_to[report.step] = lead
+        if lead is None:
+            return
+        if lead == self.id:
+            self._on_report(report)
+        else:
+            self._send(lead, report)
+
+    def _step(self, k: int) -> None:
+        self._reports = getattr(self, "_reports", {})
+        self._reports[k] = self._report(k)
+        for old in [s for s in self._reports if s < k - 2]:
+            del self._reports[old]
+        self._sent_to = {s: v for s, v in self._sent_to.items() if s >= k - 2}
+        self._deliver_report(self._reports[k])
+
+    def _retry(self, k: int) -> None:
+        """Resend step k's report if the leader changed (or became known) since it was sent
+        (the wire has no acknowledgement, unlike the simulator's missions)."""
+        report = getattr(self, "_reports", {}).get(k)
+        lead = self.node.lead
+        if report is not None and lead is not None and lead != self._sent_to.get(k):
+            self._deliver_report(report)
+
+    def _on_report(self, report: Report) -> None:
+        if self.drone.receive(report) and self.drone.has_all(report.step) and self.node.role == Role.LEADER:
+            self._decide(report.step)
+
+    def _deadline(self, k: int) -> None:
+        if self.node.role == Role.LEADER:
+            self._decide(k)
+
+    def _decide(self, k: int) -> None:
+        t0 = time.perf_counter()
+        rec = self.drone.verify_step(k, self.node.term)
+        self.counters["verify_ms_total"] += round((time.perf_counter() - t0) * 1000)
+        if rec is None:
+            return
+        data = rec.encode()
+
+        def propose() -> None:
+            try:
+                self.node.propose(data)
+            except NotLeader:
+                self.counters["proposals_not_leader"] += 1
+
+        self._push(propose)
+
+    # -- applying ---------------------------------------------------------------------------
+    def _apply(self, entry: Entry) -> None:
+        if entry.kind == EntryKind.NOOP:
+            return
+        before = self.drone.state.last_step
+        rec = self.drone.apply(entry.data)
+        if rec is None:
+            return
+        now = time.time()
+        for s in range(before + 1, rec.step):
+            self._write_step({"step": s, "committed": False, "status": "skipped"})
+        self._write_step(
+            {
+                "step": rec.step,
+                "committed": True,
+                "status": rec.status,
+                "term": rec.term,
+                "index": entry.index,
+                "record": record_hash(entry.data),
+                "digest": rec.digest,
+                "detector": rec.detector,
+                "faulty": _ids(rec.faulty),
+                "missing": _ids(rec.missing),
+                "positions": _jsonable(rec.positions),
+                "applied_unix_s": round(now, 4),
+            }
+        )
+        i = self.index
+        k_now = min(int((now - self.swarm.start_unix_s) / self.sc.dt_s), self.sc.steps)
+        if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - REALIGN_STEPS:
+            self.ins_base_t[i] = self.world.traj.t[rec.step]
+            self.ins_base_pos[i] = rec.positions[i]
+
+
+def run_node(swarm_path: str | Path, drone_id: int) -> int:
+    """Run drone ``drone_id`` of the swarm file until the scenario ends or SIGTERM/SIGINT;
+    the exit status. Bad configuration raises NodeConfigError, a failed bind BindError."""
+    swarm = load_swarm(swarm_path)
+    host = DroneHost(swarm, drone_id)
+    return asyncio.run(host.run())

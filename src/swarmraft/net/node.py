@@ -11,7 +11,9 @@ driving order (`sim.runtime`, `sim.mission`):
 - every step k (at ``start_unix_s + k * step_s``): the drone's report from the scenario's world
   (`sim.sensing.ScenarioWorld`, the same draws every process makes from the swarm file) to the
   leader it knows; a resend at half the deadline if the leader changed; the leader verifies
-  at the deadline (or once every recent drone reported) and proposes the record;
+  at the deadline (or once every recent drone reported) and proposes the record. The
+  verification runs in a worker thread (the detector takes tens of ms); the drone is not
+  touched until it returns (reports wait, applying waits);
 - every applied step is one JSON line (flushed) in ``drone-<id>.steps.jsonl``; starts, role
   changes and the final counters go to ``drone-<id>.events.jsonl``.
 
@@ -161,6 +163,9 @@ class DroneHost:
         self._timers: list[asyncio.TimerHandle] = []
         self._role: tuple[str, int] | None = None
         self._written: dict[int, str] = {}  # step -> record hash already in the step file
+        self._verifying: asyncio.Future | None = None  # the leader's verification in its thread
+        self._backlog: list[Report] = []  # reports that arrived meanwhile
+        self._decide_later: list[int] = []
 
     # -- files ------------------------------------------------------------------------------
     @property
@@ -215,6 +220,7 @@ class DroneHost:
         self._wake = asyncio.Event()
         self.transport = await UDPTransport.bind(*self.entry.bind_address, self._on_datagram)
         self._disk = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-disk")
+        self._cpu = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-verify")
         self.storage = SQLiteStorage(self.storage_path, check_same_thread=False)
         self._read_written_steps()
         self._steps = self.steps_path.open("a")
@@ -264,6 +270,7 @@ class DroneHost:
             self.transport.close()
             await self.transport.wait_closed()
             self._disk.shutdown(wait=True)
+            self._cpu.shutdown(wait=True)
             self._finish_event()
             self._steps.close()
             self._events.close()
@@ -321,9 +328,13 @@ class DroneHost:
                 while node.has_ready():
                     rd = node._ready()
                     if rd.hard_state is not None or rd.entries:
+                        t0 = time.perf_counter()
                         await loop.run_in_executor(self._disk, storage.save, rd.hard_state, rd.entries)
+                        self._time("save", t0)
                     for m in rd.messages:
                         self._send_raft(m)
+                    while rd.committed and self._verifying is not None:
+                        await asyncio.wait([self._verifying])  # the drone is busy verifying
                     for e in rd.committed:
                         self._apply(e)
                     node.advance(rd)
@@ -434,6 +445,9 @@ class DroneHost:
             self._deliver_report(report)
 
     def _on_report(self, report: Report) -> None:
+        if self._verifying is not None:
+            self._backlog.append(report)
+            return
         if self.drone.receive(report) and self.drone.has_all(report.step) and self.node.role == Role.LEADER:
             self._decide(report.step)
 
@@ -442,20 +456,48 @@ class DroneHost:
             self._decide(k)
 
     def _decide(self, k: int) -> None:
-        t0 = time.perf_counter()
-        rec = self.drone.verify_step(k, self.node.term)
-        self.counters["verify_ms_total"] += round((time.perf_counter() - t0) * 1000)
-        if rec is None:
+        """The leader's verification of step k, in the verify thread (the detector takes tens
+        of ms): until it returns, the drone is not touched (reports wait in a backlog, applying
+        waits), so `SwarmDrone` is driven one call at a time, as in the simulator."""
+        if self._verifying is not None:
+            self._decide_later.append(k)
             return
-        data = rec.encode()
+        loop = asyncio.get_running_loop()
+        t0 = time.perf_counter()
+        self._verifying = loop.run_in_executor(self._cpu, self.drone.verify_step, k, self.node.term)
+        self._verifying.add_done_callback(lambda f: self._decided(f, t0))
 
-        def propose() -> None:
-            try:
-                self.node.propose(data)
-            except NotLeader:
-                self.counters["proposals_not_leader"] += 1
+    def _decided(self, fut: asyncio.Future, t0: float) -> None:
+        self._verifying = None
+        self._time("verify", t0)
+        try:
+            rec = fut.result()
+        except Exception:
+            self.counters["internal_error"] += 1
+            _logger.exception("drone %d: verification failed", self.id)
+            rec = None
+        if rec is not None:
+            data = rec.encode()
 
-        self._push(propose)
+            def propose() -> None:
+                try:
+                    self.node.propose(data)
+                except NotLeader:
+                    self.counters["proposals_not_leader"] += 1
+
+            self._push(propose)
+        backlog, self._backlog = self._backlog, []
+        for report in backlog:
+            self._on_report(report)
+        later, self._decide_later = self._decide_later, []
+        for k in later:
+            self._decide(k)
+
+    def _time(self, what: str, t0: float) -> None:
+        ms = (time.perf_counter() - t0) * 1000
+        self.counters[f"{what}_count"] += 1
+        self.counters[f"{what}_ms_total"] += round(ms)
+        self.counters[f"{what}_ms_max"] = max(self.counters[f"{what}_ms_max"], round(ms))
 
     # -- applying ---------------------------------------------------------------------------
     def _apply(self, entry: Entry) -> None:

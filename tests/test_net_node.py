@@ -6,6 +6,7 @@ cleanly. Every wait is bounded; each test takes well under a minute on a busy 2-
 (the processes need several seconds to start there, so the scenarios are long and each test
 ends them with SIGTERM once it has seen what it checks)."""
 
+import asyncio
 import os
 import signal
 import socket
@@ -13,6 +14,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -20,6 +22,8 @@ import pytest
 from swarmraft.net.auth import Signer
 from swarmraft.net.keys import load_private_key
 from swarmraft.net.launch import NodeProcess, current_leader, events, gather_steps, prepare_swarm, read_jsonl
+from swarmraft.net.node import DroneHost
+from swarmraft.net.swarmfile import load_swarm
 from swarmraft.protocol import Keyring, Report
 from swarmraft.raft import Message, MsgType
 
@@ -234,3 +238,42 @@ def test_launch_runs_a_scenario_with_a_leader_crash_and_gathers_the_steps(tmp_pa
     committed = [r.split(",") for r in rows[1:] if r.split(",")[2] == "True"]
     assert any(int(r[0]) > 100 for r in committed)  # steps went on after the crash at 9 s
     assert all(r[8] == "True" for r in (row.split(",") for row in rows[1:]))
+
+
+def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path):
+    """Three drone hosts in this process (of a 4-drone swarm): every Raft message, when it is
+    handed to the transport, finds what it depends on already in the sender's SQLite storage:
+    its term, the vote it grants, the entries it acknowledges or sends."""
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=4))
+    path, _ = prepare_swarm(tmp_path / "run", scenario, 4, time.time() + 0.5)
+    hosts = [DroneHost(load_swarm(path), i) for i in (1, 2, 3)]
+    checked, violations = Counter(), []
+
+    def guarded(host, send):
+        def send_raft(m):
+            hs, last = host.storage.initial_state(), host.storage.last_index()
+            needs_term = m.type not in (MsgType.PRE_VOTE, MsgType.PRE_VOTE_RESP, MsgType.PROP)
+            if needs_term and hs.term < m.term:
+                violations.append(f"{m.type} of term {m.term} sent with term {hs.term} on disk")
+            if m.type == MsgType.VOTE_RESP and not m.reject and hs.vote != m.to:
+                violations.append(f"vote for {m.to} sent with vote {hs.vote} on disk")
+            if m.type == MsgType.APP_RESP and not m.reject and last < m.index:
+                violations.append(f"MsgAppResp for index {m.index} sent with {last} entries on disk")
+            if m.type == MsgType.APP and m.entries and last < m.entries[-1].index:
+                violations.append(f"MsgApp up to {m.entries[-1].index} sent with {last} entries on disk")
+            checked[m.type] += 1
+            send(m)
+
+        return send_raft
+
+    for h in hosts:
+        h._send_raft = guarded(h, h._send_raft)
+
+    async def main():
+        await asyncio.wait_for(asyncio.gather(*(h.run() for h in hosts)), 30)
+
+    asyncio.run(main())
+    assert not violations, violations[:5]
+    assert checked[MsgType.VOTE_RESP] and checked[MsgType.APP_RESP] and checked[MsgType.APP] > 20
+    assert all(h.drone.state.records for h in hosts)

@@ -277,3 +277,58 @@ def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path)
     assert not violations, violations[:5]
     assert checked[MsgType.VOTE_RESP] and checked[MsgType.APP_RESP] and checked[MsgType.APP] > 20
     assert all(h.drone.state.records for h in hosts)
+
+
+def run_cli(*args, timeout=30):
+    return subprocess.run(
+        [sys.executable, "-m", "swarmraft", *args], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def test_a_node_that_cannot_bind_or_is_misconfigured_exits_with_one_line(tmp_path):
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=4))
+    path, swarm = prepare_swarm(tmp_path / "run", scenario, 4, time.time())
+    taken = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    taken.bind(swarm.drones[1].bind_address)
+    try:
+        done = run_cli("node", "--id", "1", "--swarm", str(path))
+    finally:
+        taken.close()
+    host, port = swarm.drones[1].bind_address
+    assert done.returncode == 2
+    assert done.stderr.strip() == f"error: cannot bind UDP {host}:{port}: Address already in use"
+    done = run_cli("node", "--id", "9", "--swarm", str(path))
+    assert done.returncode == 2
+    assert done.stderr.strip() == "error: --id: no drone 9 in the swarm file (ids 1..4)"
+    (tmp_path / "run" / "keys" / "drone-2.key").chmod(0o644)
+    done = run_cli("node", "--id", "2", "--swarm", str(path))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "chmod 600" in done.stderr
+
+
+def test_ctrl_c_stops_launch_and_every_drone_process(tmp_path):
+    scenario = tmp_path / "long.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=60))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", str(scenario), "--out", str(out)]
+    launch = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        nodes = out / "nodes"
+        end = time.monotonic() + STARTUP_S
+        while time.monotonic() < end and not all(
+            any(r["committed"] for r in read_jsonl(nodes / f"drone-{i}.steps.jsonl")) for i in range(1, 5)
+        ):
+            time.sleep(0.1)
+        launch.send_signal(signal.SIGINT)
+        stdout, stderr = launch.communicate(timeout=30)
+    finally:
+        launch.kill()
+    assert launch.returncode == 130, stdout + stderr
+    assert "interrupted" in stderr and "steps committed" in stdout
+    for i in range(1, 5):
+        pid = [e for e in events(nodes, i) if e["event"] == "start"][-1]["pid"]
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+        assert [e for e in events(nodes, i) if e["event"] == "stop"][-1]["reason"] == "SIGTERM"
+    assert (out / "steps.csv").exists()

@@ -4,6 +4,7 @@ process) and launch (a swarm of drone processes on this machine)."""
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import click
@@ -84,7 +85,7 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     )
     status = run_node(swarm_path, drone_id)
     if status:
-        raise click.exceptions.Exit(status)
+        sys.exit(status)
 
 
 @main.command("launch")
@@ -194,6 +195,6 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
     )
     if interrupted:
         err_console.print("interrupted")
-        raise click.exceptions.Exit(130)
+        sys.exit(130)
     if not g.all_identical:
-        raise click.exceptions.Exit(1)
+        sys.exit(1)

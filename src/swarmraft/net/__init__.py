@@ -1,3 +1,4 @@
-"""The networked runtime's foundation: the datagram format (`wire`), signing and checking
-datagrams with anti-replay (`auth`), key files (`keys`) and the UDP transport (`transport`).
-The node runtime that drives `protocol.SwarmDrone` over them is not built yet (docs/net.md)."""
+"""The networked runtime: the datagram format (`wire`), signing and checking datagrams with
+anti-replay (`auth`), key files (`keys`), the UDP transport (`transport`), the swarm file
+(`swarmfile`), one drone process driving `protocol.SwarmDrone` and `raft.RaftNode` over them
+(`node`), and a swarm of such processes on one machine (`launch`). See docs/net.md."""

@@ -165,6 +165,8 @@ def test_five_drone_processes_commit_identical_records_and_survive_the_leader_ki
         assert stop["counters"].get("replayed_record_differs", 0) == 0
         assert stop["counters"].get("internal_error", 0) == 0
         assert stop["verifier"].get("internal_error", 0) == 0
+        # the restarted drone's sequence numbers went on above its first run's: nothing refused
+        assert stop["verifier"].get("too_old", 0) == 0 and stop["verifier"].get("replayed", 0) == 0
     g = gather_steps(swarm.nodes_dir, 5, 400, 0.1)
     assert g.all_identical and g.committed > 30
 
@@ -332,3 +334,14 @@ def test_ctrl_c_stops_launch_and_every_drone_process(tmp_path):
             os.kill(pid, 0)
         assert [e for e in events(nodes, i) if e["event"] == "stop"][-1]["reason"] == "SIGTERM"
     assert (out / "steps.csv").exists()
+
+
+def test_launch_refuses_bad_input_with_one_line(tmp_path):
+    done = run_cli("launch", "--scenario", "no-such-scenario", "--out", str(tmp_path / "a"))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "--scenario: no file no-such-scenario and no shipped scenario" in done.stderr
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "swarm.toml").write_text("")
+    done = run_cli("launch", "--scenario", "demo", "--out", str(tmp_path / "b"))
+    assert done.returncode == 2
+    assert done.stderr.strip().startswith(f"error: --out: {tmp_path / 'b'} holds a swarm already")

@@ -269,6 +269,7 @@ class DroneHost:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 loop.add_signal_handler(sig, self.stop, sig.name)
             driver = asyncio.create_task(self._drive())
+            driver.add_done_callback(lambda t: t.cancelled() or t.exception() is None or self.stop("error"))
             self._schedule_ticks(loop)
             self._schedule_steps(loop)
             self._wake.set()
@@ -332,7 +333,8 @@ class DroneHost:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            while self._pending or node.has_ready():
+            # once stopping, the Ready in hand is finished (persisted, sent, applied) and no other begun
+            while (self._pending or node.has_ready()) and not self._stopping:
                 pending, self._pending = self._pending, []
                 for action in pending:
                     try:
@@ -340,8 +342,7 @@ class DroneHost:
                     except Exception:
                         self.counters["internal_error"] += 1
                         _logger.exception("drone %d: a node event failed", self.id)
-                while node.has_ready():
-                    rd = node._ready()
+                while (rd := node.ready()) is not None:
                     if rd.hard_state is not None or rd.entries:
                         t0 = time.perf_counter()
                         await loop.run_in_executor(self._disk, storage.save, rd.hard_state, rd.entries)

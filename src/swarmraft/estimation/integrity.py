@@ -183,10 +183,46 @@ def mirror_ambiguous(
         normal = vec[..., :, axis]  # (T, i, 3): least and second-least spread
         h = np.einsum("tia,tia->ti", x - mean, normal)
         sigma_n = np.sqrt(np.maximum(np.einsum("tia,tiab,tib->ti", normal, cov, normal), 0.0))
-        # distinct (beyond what the linearised uncertainty covers) and as good a fit
-        distinct = 2 * np.abs(h) > np.sqrt(threshold) * sigma_n
-        ambiguous |= distinct & (chi2(x - 2 * h[..., None] * normal) - base < threshold)
+        # the mirror image, and the same moved into the minimum next to it (anchors that are
+        # only nearly coplanar put the second minimum beside the exact reflection, not on it)
+        mirror = x - 2 * h[..., None] * normal
+        refined = _refined(mirror, x, towards, anchors, inv_s2, prior, prior_sigma, has_prior)
+        # (the refined one only if it stayed on the mirror's side instead of coming back)
+        stayed = np.linalg.norm(refined - mirror, axis=2) < np.linalg.norm(refined - x, axis=2)
+        for other, kept in ((mirror, True), (refined, stayed)):
+            # distinct (beyond what the linearised uncertainty covers) and as good a fit
+            distinct = kept & (np.linalg.norm(other - x, axis=2) > np.sqrt(threshold) * sigma_n)
+            ambiguous |= distinct & (chi2(other) - base < threshold)
     return ambiguous & ~trusted
+
+
+def _refined(
+    pos: np.ndarray,
+    x: np.ndarray,
+    towards: np.ndarray,
+    anchors: np.ndarray,
+    inv_s2: float,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+    has_prior: np.ndarray,
+    iters: int = 6,
+) -> np.ndarray:
+    """Each drone's position (T, i, 3) after a few Gauss-Newton steps on its own ranges from
+    its anchors (fixed at x) and its prior, starting at ``pos``."""
+    d = np.nan_to_num(towards)
+    w = anchors * inv_s2
+    p_w = np.where(has_prior, 1.0 / prior_sigma**2, 0.0) if prior_sigma else np.zeros(has_prior.shape)
+    pr = np.zeros_like(pos) if prior is None else np.nan_to_num(prior)
+    for _ in range(iters):
+        diff = pos[:, :, None, :] - x[:, None, :, :]
+        dist = np.maximum(np.linalg.norm(diff, axis=3), 1e-9)
+        u = diff / dist[..., None]
+        r = dist - d
+        H = np.einsum("tik,tika,tikb->tiab", w, u, u) + p_w[..., None, None] * np.eye(3)
+        g = np.einsum("tik,tik,tika->tia", w, r, u) + p_w[..., None] * (pos - pr)
+        H = H + 1e-9 * (np.trace(H, axis1=2, axis2=3)[..., None, None] + 1e-12) * np.eye(3)
+        pos = pos - np.linalg.solve(H, g[..., None])[..., 0]
+    return pos
 
 
 def too_few_without_one(

@@ -79,12 +79,117 @@ def robust_estimate(
     score = np.where(conv, cost, np.inf)
     best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
     t = np.arange(T)
-    x, c = X[best, t], cost[best, t]
-    near = conv & (cost <= c[None] + window)
+    # one more start: the best with every untrusted drone reflected across its anchors'
+    # best-fit plane, where near-coplanar anchors leave each drone a second minimum
+    flip = weighted_gauss_newton(
+        mirrored(X[best, t], ranges, trusted),
+        reported,
+        ranges,
+        gnss_w,
+        range_w,
+        noise.gnss_cov,
+        noise.range_sigma,
+        iters,
+        prior=pr,
+        prior_sigma=prior_sigma,
+        full=True,
+    )
+    X = np.concatenate([X, flip[0][None]])
+    cost, conv = np.concatenate([cost, flip[1][None]]), np.concatenate([conv, flip[2][None]])
+    S += 1
+    score = np.where(conv, cost, np.inf)
+    best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
+    x, c, ok = X[best, t], cost[best, t], conv[best, t]
+    # An untrusted drone's position changes only the ranges trusted drones measured to it (and
+    # its prior), so each can sit in its own minimum: near-coplanar anchors leave two, and a
+    # start reaches the combination some drones need on one side and others on the other
+    # only by chance. The drone-by-drone best of all starts is one more start.
+    # each drone's own cost with the anchors where the best start put them: the same frame
+    # for every start (a start that moved the whole swarm is not a second minimum of one drone)
+    anchors = X[best, t]
+    q = np.stack(
+        [
+            _own_cost(_placed(anchors, X[k], trusted), ranges, trusted, noise.range_sigma, pr, prior_sigma)
+            for k in range(S)
+        ]
+    )
+    q = np.where(conv[..., None], q, np.inf)
+    pick = np.argmin(q, axis=0)  # (T, n)
+    mixed = np.flatnonzero(((pick != best[:, None]) & ~trusted).any(axis=1))
+    if mixed.size:
+        x_mix = x[mixed].copy()
+        untrusted = ~trusted[mixed]
+        x_mix[untrusted] = X[pick[mixed], mixed[:, None], np.arange(n)[None, :]][untrusted]
+        Xm, cm, okm = weighted_gauss_newton(
+            x_mix,
+            reported[mixed],
+            ranges[mixed],
+            gnss_w[mixed],
+            range_w[mixed],
+            noise.gnss_cov,
+            noise.range_sigma,
+            iters,
+            prior=None if pr is None else pr[mixed],
+            prior_sigma=prior_sigma,
+            full=True,
+        )
+        better = okm & (cm < c[mixed])
+        rows = mixed[better]
+        x[rows], c[rows], ok[rows] = Xm[better], cm[better], True
+        extra = np.full((1, T, n, 3), np.nan)
+        extra[0, mixed] = Xm
+        X = np.concatenate([X, extra])
+        conv = np.concatenate([conv, np.isin(t, mixed[okm])[None]])
+        cost = np.concatenate([cost, np.where(np.isin(t, mixed), 0.0, np.inf)[None]])
+        cost[-1, mixed] = cm
+        q = np.concatenate([q, np.full((1, T, n), np.inf)])
+        q[-1, mixed] = np.where(
+            okm[:, None],
+            _own_cost(
+                _placed(anchors[mixed], Xm, trusted[mixed]),
+                ranges[mixed],
+                trusted[mixed],
+                noise.range_sigma,
+                None if pr is None else pr[mixed],
+                prior_sigma,
+            ),
+            np.inf,
+        )
     far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
-    apart = np.linalg.norm(X - x[None], axis=3) > far
-    ambiguous = (near[..., None] & apart).any(axis=0) & ~trusted
-    return Estimate(x, c, conv[best, t], ambiguous)
+    with np.errstate(invalid="ignore"):
+        apart = np.linalg.norm(X - x[None], axis=3) > far
+    # ambiguous: another converged minimum places the drone apart and fits as well, judged by
+    # the whole cost or by the drone's own part of it
+    near = conv & (cost <= c[None] + window)
+    own = _own_cost(_placed(anchors, x, trusted), ranges, trusted, noise.range_sigma, pr, prior_sigma)
+    own_near = q <= own[None] + window
+    ambiguous = ((near[..., None] | own_near) & apart).any(axis=0) & ~trusted
+    return Estimate(x, c, ok, ambiguous)
+
+
+def _placed(anchors: np.ndarray, x: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """Trusted drones at ``anchors``, untrusted ones at ``x``."""
+    return np.where(trusted[..., None], anchors, x)
+
+
+def _own_cost(
+    x: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    range_sigma: float,
+    prior: np.ndarray | None,
+    prior_sigma: float | None,
+) -> np.ndarray:
+    """Per untrusted drone j (T, n; 0 for trusted ones): the chi-square of the ranges trusted
+    drones measured to it, and of its prior: the part of the joint cost only x_j changes."""
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    meas = ~np.isnan(ranges) & trusted[:, :, None]
+    r2 = np.where(meas, (dist - np.nan_to_num(ranges)) ** 2, 0.0).sum(axis=1) / range_sigma**2
+    if prior is not None and prior_sigma:
+        has = np.isfinite(prior).all(axis=2)
+        r2 = r2 + np.where(has, np.sum((x - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0)
+    return np.where(trusted, 0.0, r2)
 
 
 def anchor_planes(

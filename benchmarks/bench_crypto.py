@@ -39,20 +39,10 @@ from nacl.signing import SigningKey
 
 from swarmraft.net.auth import Signer, Verifier, public_key
 from swarmraft.raft.types import Entry, Message, MsgType
+from timing import per_op_us
 
 TARGET_US = 150.0
 SIZES = (200, 1400)
-
-
-def per_op_us(fn: Callable[[], object], ops: int, runs: int) -> tuple[float, float]:
-    """Best and median over ``runs`` runs of the mean time of one call, in microseconds."""
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        for _ in range(ops):
-            fn()
-        times.append((time.perf_counter() - t0) / ops * 1e6)
-    return min(times), statistics.median(times)
 
 
 def cryptography_ops(msg: bytes) -> tuple[Callable[[], object], Callable[[], object]] | None:

@@ -24,27 +24,15 @@ Run: .venv/bin/python benchmarks/bench_wire.py [--ops 20000] [--runs 7]
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from collections.abc import Callable
 
 from swarmraft.net import wire
 from swarmraft.raft.types import Entry, EntryKind, Message, MsgType
+from timing import per_op_us
 
 TARGET_US = 20.0
 _TYPES = list(MsgType)
 _KINDS = list(EntryKind)
-
-
-def per_op_us(fn: Callable[[], object], ops: int, runs: int) -> tuple[float, float]:
-    """Best and median over ``runs`` runs of the mean time of one call, in microseconds."""
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        for _ in range(ops):
-            fn()
-        times.append((time.perf_counter() - t0) / ops * 1e6)
-    return min(times), statistics.median(times)
 
 
 def msgpack_codec() -> tuple[Callable[[Message], bytes], Callable[[bytes], Message]] | None:

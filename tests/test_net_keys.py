@@ -133,12 +133,6 @@ def test_keygen_refuses_an_unwritable_folder(cwd, monkeypatch):
     assert "not writable" in line
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
-def test_keygen_refuses_a_read_only_folder(cwd):
-    (cwd / "ro").mkdir(mode=0o500)
-    fails_cleanly(["keygen", "--n", "2", "--out", "ro"], "--out", cwd)
-
-
 # --- loading -------------------------------------------------------------------------------
 
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 import os
 import secrets
 import stat
-import tomllib
 from pathlib import Path
 
 from swarmraft.net.auth import KEY_SIZE, public_key
+from swarmraft.net.tomlfile import read_toml
 
 PUBLIC_FILE = "swarm-keys.toml"
 FORMAT_VERSION = 1
@@ -110,14 +110,7 @@ def load_private_key(path: Path) -> bytes:
 def load_public_keys(path: Path) -> dict[int, bytes]:
     """Every drone's 32-byte public key by drone id, from a ``swarm-keys.toml``."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise KeyFileError(f"{path}: no such file (write keys with `swarmraft keygen`)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise KeyFileError(f"{path}: cannot read it ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise KeyFileError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path, KeyFileError, missing="no such file (write keys with `swarmraft keygen`)")
     if doc.get("version") != FORMAT_VERSION:
         raise KeyFileError(f"{path}: version {doc.get('version')!r}, this program reads {FORMAT_VERSION}")
     table = doc.get("public_keys")

@@ -13,12 +13,12 @@ folder. See docs/net.md for an example.
 from __future__ import annotations
 
 import ipaddress
-import tomllib
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from swarmraft.estimation.registry import one_line
+from swarmraft.net.tomlfile import read_toml
 
 FORMAT_VERSION = 1
 
@@ -140,14 +140,7 @@ class SwarmFile(_Strict):
 def load_swarm(path: str | Path) -> SwarmFile:
     """The swarm file at ``path``, validated, its relative paths resolved against its folder."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SwarmFileError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SwarmFileError(f"{path}: unreadable ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SwarmFileError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, SwarmFileError)
     # TOML keys are strings: drone ids must be integers
     drones = data.get("drones")
     if isinstance(drones, dict):

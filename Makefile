@@ -36,6 +36,8 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_detectors.py
 	$(BIN)/python benchmarks/bench_raft.py
 	$(BIN)/python benchmarks/bench_mission.py
+	$(BIN)/python benchmarks/bench_crypto.py
+	$(BIN)/python benchmarks/bench_wire.py
 
 clean:
 	rm -rf $(VENV) results

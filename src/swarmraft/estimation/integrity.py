@@ -3,12 +3,14 @@
 The statistical detectors (`clique`, `fde`, `joint`) each decide a trusted set; this module
 turns that set into a verdict a user can rely on, the way GNSS receivers do with RAIM/ARAIM:
 
-1. `robust_estimate`: the joint estimate with that trusted set, by Levenberg-Marquardt with
-   step acceptance from several starts (closed-form multilateration, the reports, the prior,
-   and any start the detector brings, such as the clique's or the GNC estimate); the lowest
+1. `robust.robust_estimate`: the joint estimate with that trusted set, by Levenberg-Marquardt
+   with step acceptance from several starts (closed-form multilateration, the reports, the
+   prior, any start the detector brings, the best reflected, and a per-drone mix); the lowest
    converged cost wins. Converged starts that fit equally well but place a drone apart
    (a mirror of near-coplanar anchors) leave that drone undetermined.
 2. `assess`: the statuses and protection levels.
+3. `finish` then repairs a set that fails its tests with a passing swap and checks an `ok`
+   verdict against rival sets (`rivals.rival_sets`).
 
    - ``alarm``: the fit fails its own chi-square tests at ``p_fa`` (`joint.tests_pass`), the
      solver did not converge, or a solution-separation test fails.

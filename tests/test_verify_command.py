@@ -1,0 +1,69 @@
+"""swarmraft verify: one snapshot from a file, its verdict printed; bad files are one line."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+from test_bad_input import fails_cleanly
+
+EXAMPLES = Path(__file__).parent.parent / "docs" / "examples"
+
+
+def verdict(args):
+    r = CliRunner().invoke(main, ["verify", *args, "--json"])
+    assert r.exit_code == 0, r.output
+    return json.loads(r.output)
+
+
+def test_the_example_snapshot_flags_its_two_spoofed_drones():
+    """docs/examples/snapshot.json: 9 drones, realistic noise, drones 2 and 5 spoofed by 82 and
+    78 m; joint flags exactly them, says ok, and bounds every position."""
+    v = verdict([str(EXAMPLES / "snapshot.json")])
+    assert v["status"] == "ok"
+    assert [d["drone"] for d in v["drones"] if d["flagged"]] == [2, 5]
+    assert all(0 < d["hpl"] < 30 and 0 < d["vpl"] < 30 for d in v["drones"])
+
+
+def test_csv_with_noise_options_gives_the_json_verdict():
+    a = verdict([str(EXAMPLES / "snapshot.json")])
+    b = verdict([str(EXAMPLES / "snapshot.csv"), "--gnss-sigma", "1.5,3", "--range-sigma", "0.1"])
+    assert [d["flagged"] for d in a["drones"]] == [d["flagged"] for d in b["drones"]]
+    pa = np.array([d["position"] for d in a["drones"]])
+    pb = np.array([d["position"] for d in b["drones"]])
+    assert np.allclose(pa, pb, atol=1e-6)
+
+
+def test_the_table_names_flagged_drones():
+    r = CliRunner().invoke(main, ["verify", str(EXAMPLES / "snapshot.json")])
+    assert r.exit_code == 0, r.output
+    flagged = [ln.split()[0] for ln in r.output.splitlines() if "FLAGGED" in ln]
+    assert flagged == ["2", "5"]
+
+
+def test_bad_snapshot_files_are_one_line(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(EXAMPLES / "snapshot.csv", tmp_path / "s.csv")
+    (tmp_path / "bad.json").write_text('{"reported": [[0, 0')
+    (tmp_path / "word.csv").write_text("x,y,z,r0\nabc,0,0,\n")
+    (tmp_path / "cols.csv").write_text("x,y,z,r0\n0,0,0,\n1,1,1,1\n")
+    (tmp_path / "keys.json").write_text('{"reported": [[0, 0, 0]], "ranges": [[null]], "sigma": 1}')
+    (tmp_path / "s.txt").write_text("")
+    fails_cleanly(["verify", "nope.json"], "nope.json: no such file", tmp_path)
+    fails_cleanly(["verify", "bad.json"], "bad.json: not valid JSON", tmp_path)
+    fails_cleanly(
+        ["verify", "word.csv", "--detector", "paper"], "word.csv, line 2, x: 'abc' is not a number", tmp_path
+    )
+    fails_cleanly(
+        ["verify", "cols.csv", "--detector", "paper"], "cols.csv: 2 drones, but no column r1", tmp_path
+    )
+    fails_cleanly(["verify", "keys.json"], "keys.json: unknown key 'sigma'", tmp_path)
+    fails_cleanly(["verify", "s.txt"], "s.txt: expected a .json or .csv file", tmp_path)
+    fails_cleanly(["verify", "s.csv"], "--range-sigma: s.csv gives no noise model", tmp_path)
+    fails_cleanly(
+        ["verify", "s.csv", "--gnss-sigma", "1.5", "--range-sigma", "0.1"], "--gnss-sigma", tmp_path
+    )
+    fails_cleanly(["verify", "s.csv", "--range-sigma", "0.1", "--detector", "nope"], "nope", tmp_path)

@@ -48,7 +48,7 @@ from scipy.special import ndtri
 
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
-from swarmraft.estimation.rivals import rival_sets
+from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, anchor_planes, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
@@ -433,32 +433,34 @@ def finish(
       places some drone beyond its protection level: the data do not decide between them.
       The verdict becomes ``unidentifiable``, estimated from the drones both sets trust,
       with only the drones outside both flagged."""
-    reported = np.asarray(batch.reported, float)
-    ranges = np.asarray(batch.ranges, float)
-    prior = None if batch.prior is None else np.asarray(batch.prior, float)
-    T, n, _ = reported.shape
+    prob = _Problem(
+        np.asarray(batch.reported, float),
+        np.asarray(batch.ranges, float),
+        noise,
+        p,
+        None if batch.prior is None else np.asarray(batch.prior, float),
+        batch.prior_sigma,
+        starts,
+    )
+    T = prob.reported.shape[0]
     faulty = ~trusted if faulty is None else faulty.copy()
     status = np.full(T, "ok", dtype=object) if status is None else np.asarray(status, dtype=object).copy()
     trusted = trusted.copy()
-    est, a = _judge(reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts)
-    repaired = _repaired_rows(est, a, status, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
+    est, a = prob.judge(np.arange(T), trusted)
+    repaired = _repaired_rows(prob, est, a, status, trusted)
     if repaired is not None:
         rows, sets = repaired
         trusted[rows] = sets
         faulty[rows] = ~sets
-        est, a = _rejudged(
-            est, a, rows, reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts
-        )
+        est, a = _rejudged(prob, est, a, rows, trusted)
     final = worst_status(a.status, status)
-    rival = _rival_rows(est, a, final, reported, ranges, trusted, noise, p, prior, batch.prior_sigma)
+    rival = _rival_rows(prob, est, a, final, trusted)
     if rival is not None:
         rows, other = rival
         status[rows] = "unidentifiable"
         faulty[rows] = ~trusted[rows] & ~other
         trusted[rows] &= other
-        est, a = _rejudged(
-            est, a, rows, reported, ranges, trusted, noise, p, prior, batch.prior_sigma, starts
-        )
+        est, a = _rejudged(prob, est, a, rows, trusted)
         final = worst_status(a.status, status)
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
@@ -481,63 +483,63 @@ def _merged(whole: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray
     return out
 
 
+@dataclass(frozen=True)
+class _Problem:
+    """What every step of `finish` shares: the data, the noise model, the parameters, the
+    priors and the detector's starts (all per trial)."""
+
+    reported: np.ndarray
+    ranges: np.ndarray
+    noise: NoiseModel
+    p: IntegrityParams
+    prior: np.ndarray | None
+    prior_sigma: float | None
+    starts: tuple[np.ndarray, ...]
+
+    def judge(self, rows: np.ndarray, trusted: np.ndarray) -> tuple[Estimate, Assessment]:
+        """Robust estimate and assessment of the trials ``rows`` with their trusted sets."""
+        pr = None if self.prior is None else self.prior[rows]
+        rep, rng, tr = self.reported[rows], self.ranges[rows], trusted[rows]
+        window = float(chi2_quantile(1 - self.p.p_fa, 1))
+        starts = tuple(s[rows] for s in self.starts)
+        est = robust_estimate(rep, rng, tr, self.noise, pr, self.prior_sigma, starts, window=window)
+        return est, assess(est, rep, rng, tr, self.noise, self.p, pr, self.prior_sigma)
+
+    def swaps(self, est: Estimate, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
+        """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`)."""
+        return rival_sets(
+            est.x,
+            self.reported,
+            self.ranges,
+            trusted,
+            self.noise,
+            self.p.p_fa,
+            rows,
+            self.prior,
+            self.prior_sigma,
+        )
+
+
 def _rejudged(
-    est: Estimate,
-    a: Assessment,
-    rows: np.ndarray,
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    p: IntegrityParams,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
-    starts: tuple[np.ndarray, ...],
+    prob: _Problem, est: Estimate, a: Assessment, rows: np.ndarray, trusted: np.ndarray
 ) -> tuple[Estimate, Assessment]:
     """``est`` and ``a`` with the trials ``rows`` judged again with their new trusted sets."""
-    pr = None if prior is None else prior[rows]
-    sub = tuple(s[rows] for s in starts)
-    e, b = _judge(reported[rows], ranges[rows], trusted[rows], noise, p, pr, prior_sigma, sub)
+    e, b = prob.judge(rows, trusted)
     return (
         Estimate(*(_merged(getattr(est, k), getattr(e, k), rows) for k in Estimate.__dataclass_fields__)),
         Assessment(*(_merged(getattr(a, k), getattr(b, k), rows) for k in Assessment.__dataclass_fields__)),
     )
 
 
-def _judge(
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    p: IntegrityParams,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
-    starts: tuple[np.ndarray, ...],
-) -> tuple[Estimate, Assessment]:
-    """Robust estimate and assessment of one trusted set per trial."""
-    window = float(chi2_quantile(1 - p.p_fa, 1))
-    est = robust_estimate(reported, ranges, trusted, noise, prior, prior_sigma, starts, window=window)
-    return est, assess(est, reported, ranges, trusted, noise, p, prior, prior_sigma)
-
-
 def _repaired_rows(
-    est: Estimate,
-    a: Assessment,
-    status: np.ndarray,
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    p: IntegrityParams,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
+    prob: _Problem, est: Estimate, a: Assessment, status: np.ndarray, trusted: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Trials (indices) whose trusted set fails its residual test while a swap passes, and
     the passing swap of lowest chi-square for each (len(rows), n); None if there are none."""
     rows = np.flatnonzero((a.alarm_cause == "residual test") & (status != "alarm") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = rival_sets(est.x, reported, ranges, trusted, noise, p.p_fa, rows, prior, prior_sigma)
+    r = prob.swaps(est, trusted, rows)
     cost = np.where(r.passed, r.cost, np.inf)
     order = np.lexsort((cost, r.owner))  # by trial, then cost
     owners, first = np.unique(r.owner[order], return_index=True)
@@ -549,23 +551,14 @@ def _repaired_rows(
 
 
 def _rival_rows(
-    est: Estimate,
-    a: Assessment,
-    status: np.ndarray,
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    p: IntegrityParams,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
+    prob: _Problem, est: Estimate, a: Assessment, status: np.ndarray, trusted: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict has a rival trusted set placing some drone beyond
     its protection level, and that rival (len(rows), n); None if there are none."""
     rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = rival_sets(est.x, reported, ranges, trusted, noise, p.p_fa, rows, prior, prior_sigma)
+    r = prob.swaps(est, trusted, rows)
     d = r.x - a.positions[r.owner]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])

@@ -209,3 +209,27 @@ def test_spoofing_over_time_is_flagged(spoof):
     assert victims
     flagged = log.faulty[np.ix_(k, victims)][log.committed[k]]
     assert flagged.mean() > 0.9
+
+
+def test_a_pause_of_every_drone_skips_its_steps_and_the_mission_goes_on():
+    sc = Scenario(
+        drones=5,
+        duration_s=8,
+        seed=3,
+        protocol={"detector": "joint"},
+        fault=[{"kind": "pause", "at_s": 3, "for_s": 2}],
+    )
+    log = run_mission(sc)
+    errors = error_series(log)
+    summary = summarize(log, errors)
+    assert summary["records_identical_on_all_nodes"]
+    assert "every drone paused for 2 s" in " ".join(summary["events"])
+    assert not log.committed[31:50].any()  # frozen: no reports, no verification
+    assert log.committed[:30].sum() >= 25 and log.committed[56:].all()
+
+
+def test_a_pause_needs_a_duration_and_only_a_pause_has_one():
+    with pytest.raises(ValueError, match=r"fault\[0\]\.for_s: pause needs a duration"):
+        Scenario(drones=5, duration_s=8, fault=[{"kind": "pause", "at_s": 3}])
+    with pytest.raises(ValueError, match=r"fault\[0\]\.for_s: only a pause has a duration"):
+        Scenario(drones=5, duration_s=8, fault=[{"kind": "crash", "drone": 1, "at_s": 3, "for_s": 1}])

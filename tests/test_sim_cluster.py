@@ -185,3 +185,60 @@ def test_fuzz_500_seeds_no_violation_and_everything_committed_everywhere():
 
 def test_fuzz_replays_a_seed_exactly():
     assert run_seed(123) == run_seed(123)
+
+
+def test_a_paused_leader_is_replaced_and_handles_what_waited_for_it_when_it_resumes():
+    c = Cluster(5, seed=3)
+    lead = elected(c)
+    term = c.status(lead).term
+    for k in range(3):
+        assert c.propose(f"a{k}".encode())
+    assert c.run_until(lambda: all_applied(c, [b"a0", b"a1", b"a2"]), 1000)
+    c.pause(lead, 2000)
+    assert c.paused(lead) and c.alive(lead)
+    # a frozen node gets no ticks: it does not notice it lost its quorum, and is not the leader
+    assert c.leader() != lead
+    assert c.run_until(lambda: c.leader() not in (None, lead), 1000)
+    new = c.leader()
+    assert c.status(new).term > term
+    assert c.status(lead).role == "leader" and c.status(lead).term == term  # frozen as it was
+    assert c.propose(b"b0", via=new)
+    others = [i for i in c.ids if i != lead]
+    want = [b"a0", b"a1", b"a2", b"b0"]
+    assert c.run_until(lambda: all_applied(c, want, others), 1000)
+    assert c.applied(lead) == want[:3]  # nothing reached it while frozen
+    c.run(2000)
+    assert not c.paused(lead)
+    # on resume it reads what was delivered meanwhile, steps down and catches up
+    assert c.run_until(lambda: all_applied(c, want), 2000)
+    assert c.status(lead).role == "follower" and c.status(lead).term == c.status(new).term
+
+
+def test_pausing_every_node_at_once_resumes_into_one_leader():
+    c = Cluster(5, seed=4)
+    elected(c)
+    assert c.propose(b"before")
+    c.run(50)
+    for i in c.ids:
+        c.pause(i, 2000)
+    assert c.leader() is None
+    c.run(1990)
+    assert all(c.paused(i) for i in c.ids)
+    c.run(20)
+    lead = elected(c)
+    assert c.propose(b"after", via=lead)
+    assert c.run_until(lambda: all_applied(c, [b"before", b"after"]), 2000)
+
+
+def test_a_crash_during_a_pause_ends_it():
+    c = Cluster(3, seed=5)
+    elected(c)
+    c.pause(2, 1000)
+    c.crash(2)
+    assert not c.paused(2)
+    c.restart(2)
+    c.pause(2, 5000)
+    c.run(1500)  # the first pause's end must not resume the second
+    assert c.paused(2)
+    with pytest.raises(ValueError, match="ms must be > 0"):
+        c.pause(1, 0)

@@ -146,7 +146,7 @@ class Mission:
             node = i + 1
             alive = self.cluster.alive(node)
             log.alive[k, i] = alive
-            if not alive:
+            if not alive or self.cluster.paused(node):  # a paused process sends nothing
                 continue
             pos, source = (fix[i], "gnss") if has_fix[i] else (ins[i], "ins")
             innov = self._innovation(k, i) if has_fix[i] else None
@@ -177,7 +177,7 @@ class Mission:
         for i in range(self.sc.drones):
             node = i + 1
             rn = self.cluster.nodes.get(node)
-            if rn is None or rn.lead is None or k not in self._rows:
+            if rn is None or rn.lead is None or k not in self._rows or self.cluster.paused(node):
                 continue
             if not np.isfinite(self.log.reported[k, i]).all():
                 continue
@@ -258,6 +258,12 @@ class Mission:
             if not c.alive(f.drone):
                 c.restart(f.drone)
             self.log.events.append((now, f"drone {f.drone} restarted"))
+        elif f.kind == "pause":
+            who = [f.drone] if f.drone is not None else list(c.ids)
+            for d in who:
+                c.pause(d, f.for_s * 1000)
+            name = f"drone {f.drone}" if f.drone is not None else "every drone"
+            self.log.events.append((now, f"{name} paused for {f.for_s:g} s"))
         elif f.kind == "partition":
             c.partition(*f.groups)
             self.log.events.append((now, f"partition {f.groups}"))

@@ -115,6 +115,7 @@ class Cluster:
         self.nodes: dict[int, RaftNode | None] = {}
         self._incarnation = dict.fromkeys(self.ids, 0)
         self._applied: dict[int, list[Entry]] = {i: [] for i in self.ids}
+        self._held: dict[int, list[Callable[[], None]]] = {}  # paused node -> deliveries waiting
         self.checker = InvariantChecker(seed) if check_invariants else None
         self.sent: Counter[str] = Counter()
         self.app_sent = 0
@@ -138,7 +139,7 @@ class Cluster:
         """One clock tick for every live node, in id order (one event, not n)."""
         for i in self.ids:
             node = self.nodes.get(i)
-            if node is not None:
+            if node is not None and i not in self._held:
                 node.tick()
                 if node.has_ready():
                     self._process(i)
@@ -147,6 +148,9 @@ class Cluster:
     def _deliver(self, m: Message) -> None:
         node = self.nodes.get(m.to)
         if node is None:
+            return
+        if m.to in self._held:
+            self._held[m.to].append(lambda: self._deliver(m))
             return
         self.delivered[m.type] += 1
         node.step(m)
@@ -213,6 +217,31 @@ class Cluster:
         """Stop node i: its volatile state is lost, its storage keeps what was persisted."""
         self._check_id(i)
         self.nodes[i] = None
+        self._held.pop(i, None)
+
+    def pause(self, i: int, ms: float) -> None:
+        """Freeze node i for ``ms`` (a SIGSTOPped process): it keeps its state but gets no
+        ticks, and what is delivered to it waits, to be handled in arrival order when it
+        resumes (as a socket buffer holds datagrams). Its missed ticks are not replayed.
+        Pausing a crashed or paused node does nothing."""
+        self._check_id(i)
+        if ms <= 0:
+            raise ValueError("pause: ms must be > 0")
+        if self.nodes.get(i) is None or i in self._held:
+            return
+        self._held[i] = held = []
+        self.loop.after(ms, self._resume, i, held)
+
+    def _resume(self, i: int, held: list[Callable[[], None]]) -> None:
+        if self._held.get(i) is not held:  # crashed meanwhile (and perhaps paused again)
+            return
+        del self._held[i]
+        for deliver in held:
+            deliver()
+
+    def paused(self, i: int) -> bool:
+        self._check_id(i)
+        return i in self._held
 
     def restart(self, i: int) -> None:
         """Restart a crashed node from its storage."""
@@ -271,7 +300,9 @@ class Cluster:
             self.loop.after(d, self._deliver_app, to, handler, payload)
 
     def _deliver_app(self, to: int, handler: Callable[[int, Any], None], payload: Any) -> None:
-        if self.nodes.get(to) is not None:
+        if to in self._held:
+            self._held[to].append(lambda: self._deliver_app(to, handler, payload))
+        elif self.nodes.get(to) is not None:
             handler(to, payload)
 
     # -- client side ----------------------------------------------------------------------
@@ -294,9 +325,11 @@ class Cluster:
         return index is not None
 
     def leader(self) -> int | None:
-        """The live leader of the highest term, or None."""
+        """The live, running (not paused) leader of the highest term, or None."""
         best = None
         for i in self.alive_ids():
+            if i in self._held:
+                continue
             node = self.nodes[i]
             assert node is not None
             if node.role == "leader" and (best is None or node.term > self.nodes[best].term):  # type: ignore[union-attr]

@@ -125,11 +125,12 @@ class OutageConfig(_Strict):
 
 
 class FaultConfig(_Strict):
-    kind: Literal["crash", "crash-leader", "restart", "partition", "heal", "loss"]
+    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss"]
     at_s: float = Field(ge=0)
     drone: int | None = None
     groups: list[list[int]] = Field(default_factory=list)
     value: float | None = Field(None, ge=0, le=1, description="loss probability")
+    for_s: float | None = Field(None, gt=0, description="pause: how long, s")
 
 
 class Scenario(_Strict):
@@ -198,6 +199,10 @@ class Scenario(_Strict):
                     check(g, f"fault[{k}].groups")
             if f.kind == "loss" and f.value is None:
                 raise ValueError(f"fault[{k}].value: loss needs a value")
+            if f.kind == "pause" and f.for_s is None:
+                raise ValueError(f"fault[{k}].for_s: pause needs a duration")
+            if f.kind != "pause" and f.for_s is not None:
+                raise ValueError(f"fault[{k}].for_s: only a pause has a duration")
         if self.raft.heartbeat_tick >= self.raft.election_tick:
             raise ValueError("raft.heartbeat_tick: must be below election_tick")
         try:

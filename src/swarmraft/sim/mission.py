@@ -53,10 +53,63 @@ class MissionLog:
     detector_params: dict = field(default_factory=dict)  # as used (calibrated thresholds included)
 
 
+def world_log(w: ScenarioWorld) -> MissionLog:
+    """A mission log with what the world alone determines filled in (time, truth, GNSS,
+    spoofing, outages, INS alone); what the swarm did (reports, records, leaders, messages)
+    is left for its runner to fill: nan, False, 0 or "skipped"."""
+    sc, traj = w.sc, w.traj
+    n, S = sc.drones, sc.steps + 1
+    nan3 = np.full((S, n, 3), np.nan)
+    log = MissionLog(
+        scenario=sc,
+        t=traj.t[:S],
+        truth=traj.positions[:S],
+        gnss=nan3.copy(),
+        honest_gnss=nan3.copy(),
+        reported=nan3.copy(),
+        ins_alone=nan3.copy(),
+        ins_aligned=nan3.copy(),
+        spoofed=np.zeros((S, n), bool),
+        outage=np.zeros((S, n), bool),
+        alive=np.zeros((S, n), bool),
+        verified=nan3.copy(),
+        hpl=np.full((S, n), np.nan),
+        vpl=np.full((S, n), np.nan),
+        faulty=np.zeros((S, n), bool),
+        missing=np.zeros((S, n), bool),
+        committed=np.zeros(S, bool),
+        status=np.full(S, "skipped", dtype=object),
+        leader=np.zeros(S, int),
+        term=np.zeros(S, int),
+        latency_ms=np.full(S, np.nan),
+        raft_messages=np.zeros(S, int),
+        report_messages=np.zeros(S, int),
+        ins_sigma_window=ins_sigma(w.grade, sc.protocol.innovation_window_s),
+    )
+    for k in range(S):
+        truth = traj.positions[k]
+        log.gnss[k] = np.where(w.has_fix[k][:, None], w.fix[k], np.nan)
+        log.honest_gnss[k] = truth + w.gnss_err[k]
+        log.spoofed[k], log.outage[k] = w.spoofed[k], ~w.has_fix[k]
+        log.ins_alone[k] = truth + w.drift.error(np.full(n, traj.t[k]))
+    return log
+
+
+def ins_aligned_in_outages(log: MissionLog, drift: InsDrift) -> None:
+    """Fill ``log.ins_aligned``, the baseline a user means by "INS alone" in an outage: each
+    drone's INS aligned to its true position at the step its GNSS was lost, then dead
+    reckoning (a perfect alignment: the most this baseline can be given)."""
+    for i in range(log.scenario.drones):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], log.outage[:, i].astype(int), [0]])))
+        own = InsDrift(drift.accel[i : i + 1], drift.gyro[i : i + 1])
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            log.ins_aligned[a:b, i] = log.truth[a:b, i] + own.error(log.t[a:b] - log.t[a])
+
+
 class Mission:
     def __init__(self, sc: Scenario) -> None:
         self.sc = sc
-        n, S = sc.drones, sc.steps + 1
+        n = sc.drones
         # Every random draw of the world, in the order the mission has always made them
         # (shared with the networked runtime: sim.sensing).
         self.world = w = ScenarioWorld.build(sc)
@@ -90,38 +143,9 @@ class Mission:
         # the true motion plus its drift.
         self.ins_base_t = np.zeros(n)
         self.ins_base_pos = self.traj.positions[0].copy()
-        self.log = self._empty_log(S, n)
+        self.log = world_log(w)
         self.sent_to: dict[int, int | None] = {}
         self._first_apply: dict[int, float] = {}
-
-    def _empty_log(self, S: int, n: int) -> MissionLog:
-        nan3 = np.full((S, n, 3), np.nan)
-        return MissionLog(
-            scenario=self.sc,
-            t=self.traj.t[:S],
-            truth=self.traj.positions[:S],
-            gnss=nan3.copy(),
-            honest_gnss=nan3.copy(),
-            reported=nan3.copy(),
-            ins_alone=nan3.copy(),
-            ins_aligned=nan3.copy(),
-            spoofed=np.zeros((S, n), bool),
-            outage=np.zeros((S, n), bool),
-            alive=np.zeros((S, n), bool),
-            verified=nan3.copy(),
-            hpl=np.full((S, n), np.nan),
-            vpl=np.full((S, n), np.nan),
-            faulty=np.zeros((S, n), bool),
-            missing=np.zeros((S, n), bool),
-            committed=np.zeros(S, bool),
-            status=np.full(S, "skipped", dtype=object),
-            leader=np.zeros(S, int),
-            term=np.zeros(S, int),
-            latency_ms=np.full(S, np.nan),
-            raft_messages=np.zeros(S, int),
-            report_messages=np.zeros(S, int),
-            ins_sigma_window=ins_sigma(self.grade, self.sc.protocol.innovation_window_s),
-        )
 
     # -- sensing and reporting --------------------------------------------------------------
     def _ins(self, k: int) -> np.ndarray:
@@ -131,17 +155,10 @@ class Mission:
     def _step(self, k: int) -> None:
         sc, n, log = self.sc, self.sc.drones, self.log
         w = self.world
-        t = self.traj.t[k]
-        truth = self.traj.positions[k]
-        honest = truth + self.gnss_err[k]
-        fix, has_fix, spoofed = w.fix[k], w.has_fix[k], w.spoofed[k]
+        fix, has_fix = w.fix[k], w.has_fix[k]
         ins = self._ins(k)
         ranges = w.measured_ranges(k, ins)
         self._rows[k] = ranges
-        log.gnss[k] = np.where(has_fix[:, None], fix, np.nan)
-        log.honest_gnss[k] = honest
-        log.spoofed[k], log.outage[k] = spoofed, ~has_fix
-        log.ins_alone[k] = truth + self.drift.error(np.full(n, t))
         for i in range(n):
             node = i + 1
             alive = self.cluster.alive(node)
@@ -318,20 +335,9 @@ class Mission:
             log.status[k] = rec.status
             log.latency_ms[k] = self._first_apply.get(k, np.nan) - k * self.sc.dt_s * 1000
         log.status = log.status.astype(str)
-        self._ins_aligned_in_outages()
+        ins_aligned_in_outages(log, self.drift)
         log.detector_params = dict(self.pcfg.detector_params)
         return log
-
-    def _ins_aligned_in_outages(self) -> None:
-        """The baseline a user means by "INS alone" in an outage: each drone's INS aligned to
-        its true position at the step its GNSS was lost, then dead reckoning (a perfect
-        alignment: the most this baseline can be given)."""
-        log = self.log
-        for i in range(self.sc.drones):
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], log.outage[:, i].astype(int), [0]])))
-            own = InsDrift(self.drift.accel[i : i + 1], self.drift.gyro[i : i + 1])
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                log.ins_aligned[a:b, i] = log.truth[a:b, i] + own.error(log.t[a:b] - log.t[a])
 
 
 def run_mission(sc: Scenario, progress: Callable[[int], None] | None = None) -> MissionLog:

@@ -219,29 +219,6 @@ def test_hostile_datagrams_are_dropped_and_counted_while_drones_keep_stepping(tm
         s.close()
 
 
-def test_launch_runs_a_scenario_with_a_leader_crash_and_gathers_the_steps(tmp_path):
-    scenario = tmp_path / "crash.toml"
-    scenario.write_text(
-        SCENARIO.format(n=5, duration=14)
-        + '\n[[fault]]\nkind = "crash-leader"\nat_s = 9\n'
-        + '\n[[fault]]\nkind = "partition"\nat_s = 10\ngroups = [[1]]\n'
-    )
-    out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", str(scenario), "--out", str(out)]
-    env = {**os.environ, "COLUMNS": "200"}
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=55, env=env)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "leader" in done.stdout and "killed (SIGKILL)" in done.stdout
-    assert "partition: not applied" in done.stdout
-    assert "every node's records identical: yes" in done.stdout
-    rows = (out / "steps.csv").read_text().splitlines()
-    assert rows[0].startswith("step,t_s,committed,status")
-    assert len(rows) == 1 + 141
-    committed = [r.split(",") for r in rows[1:] if r.split(",")[2] == "True"]
-    assert any(int(r[0]) > 100 for r in committed)  # steps went on after the crash at 9 s
-    assert all(r[8] == "True" for r in (row.split(",") for row in rows[1:]))
-
-
 def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path):
     """Three drone hosts in this process (of a 4-drone swarm): every Raft message, when it is
     handed to the transport, finds what it depends on already in the sender's SQLite storage:

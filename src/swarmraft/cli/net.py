@@ -96,7 +96,10 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     help="a shipped scenario's name or a scenario TOML file (docs/scenarios.md)",
 )
 @click.option(
-    "--out", type=OutFolder(), required=True, help="folder for keys, swarm.toml, node files, steps.csv"
+    "--out",
+    type=OutFolder(),
+    required=True,
+    help="folder for keys, swarm.toml, the drones' files and the results (steps.csv, summary.json, figures)",
 )
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="override the scenario's seed")
 @click.option(
@@ -106,27 +109,35 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     default=None,
     help="seconds from launch to step 0, for the processes to start (default: 3 + 2.5 x drones / cores)",
 )
-def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None) -> None:
+@click.option(
+    "--relay",
+    "relay",
+    type=click.Choice(["auto", "on", "off"]),
+    default="auto",
+    show_default=True,
+    help="put the fault relay between the drones (delay, loss, duplication, reordering, partitions); "
+    "auto: when the scenario has loss, duplication, reordering or partition/heal/loss faults",
+)
+def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None, relay: str) -> None:
     """Run a scenario as a real swarm on this machine: one `swarmraft node` process per drone
-    on 127.0.0.1 over UDP. Writes OUT/keys, OUT/scenario.toml and OUT/swarm.toml, starts the
-    processes, applies the scenario's crash faults to them (crash and crash-leader: SIGKILL;
-    restart: start again on the same SQLite file), waits for the scenario's end, and gathers
-    every node's step file into OUT/steps.csv (one row per step: committed or skipped, status,
-    flags, and whether every node holds the same record). Partition, heal and loss faults are
-    not applied (they need a fault relay). Ctrl-C stops every process.
-    """
-    import time
+    on 127.0.0.1 over signed UDP datagrams.
 
-    from swarmraft.experiments.mission import load_scenario
-    from swarmraft.net.launch import (
-        NODES_DIR,
-        NodeProcess,
-        current_leader,
-        default_start_delay_s,
-        gather_steps,
-        prepare_swarm,
-    )
+    Writes OUT/keys, OUT/scenario.toml and OUT/swarm.toml; starts the processes (their files
+    in OUT/nodes); puts the fault relay between them when needed (--relay); applies the
+    scenario's faults at their times (crash and crash-leader: SIGKILL; restart: start again on
+    the same SQLite file; pause: SIGSTOP, then SIGCONT; partition, heal and loss: the relay);
+    waits for the scenario's end; then writes what `swarmraft mission` writes (steps.csv,
+    summary.json, scenario.json, figures/) from the drones' files, and OUT/records.csv (per
+    step: how many drones hold it and whether their records are identical). Exit status 1 if
+    any step's records differ between drones; Ctrl-C stops every process (status 130).
+    """
+    from swarmraft.cli.missions import mission_figures, print_mission_summary
+    from swarmraft.experiments.mission import load_scenario, write_results
+    from swarmraft.net.launch import gather_steps
+    from swarmraft.net.localswarm import LocalSwarm
+    from swarmraft.net.results import launch_log
     from swarmraft.sim.scenario import find_scenario
+    from swarmraft.sim.sensing import ScenarioWorld
 
     sc = load_scenario(scenario, seed=seed)
     if (out / "swarm.toml").exists():
@@ -134,66 +145,59 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
             f"{out} holds a swarm already (swarm.toml); choose another folder", param_hint="--out"
         )
     n = sc.drones
-    delay = default_start_delay_s(n) if start_delay is None else start_delay
-    start = time.time() + delay
-    swarm_path, swarm = prepare_swarm(out, find_scenario(scenario), n, start, seed)
-    nodes_dir = out / NODES_DIR
-    procs = {i: NodeProcess(i, swarm_path, nodes_dir / f"drone-{i}.log") for i in range(1, n + 1)}
-    console.print(f"wrote {out / 'keys'} and {swarm_path}", soft_wrap=True)
-    console.print(f"starting {n} drone processes; step 0 at +{delay:.1f} s, {sc.duration_s:g} s of scenario")
-    applied: list[str] = []
-    interrupted = False
-    try:
-        for p in procs.values():
-            p.start()
-        for f in sorted(sc.fault, key=lambda f: f.at_s):
-            while time.time() < start + f.at_s:
-                time.sleep(0.02)
-            alive = [i for i, p in procs.items() if p.alive]
-            if f.kind == "crash-leader":
-                lead = current_leader(nodes_dir, alive)
-                if lead is None:
-                    applied.append(f"{f.at_s:g} s: crash-leader: no leader known, nothing killed")
-                    console.print(applied[-1])
-                    continue
-                procs[lead[0]].kill()
-                applied.append(f"{f.at_s:g} s: leader {lead[0]} (term {lead[1]}) killed (SIGKILL)")
-            elif f.kind == "crash":
-                procs[f.drone].kill()
-                applied.append(f"{f.at_s:g} s: drone {f.drone} killed (SIGKILL)")
-            elif f.kind == "restart":
-                if procs[f.drone].alive:
-                    applied.append(f"{f.at_s:g} s: restart: drone {f.drone} is running")
-                    console.print(applied[-1])
-                    continue
-                procs[f.drone].start()
-                applied.append(f"{f.at_s:g} s: drone {f.drone} restarted on its SQLite file")
-            else:
-                applied.append(f"{f.at_s:g} s: {f.kind}: not applied (no fault relay yet)")
-            console.print(applied[-1])
-        end = start + sc.steps * sc.dt_s + 15.0
-        while any(p.alive for p in procs.values()) and time.time() < end:
-            time.sleep(0.1)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        for p in procs.values():
-            p.terminate()
-        for p in procs.values():
-            if p.wait(10) is None:
-                p.kill()
-    g = gather_steps(nodes_dir, n, sc.steps, sc.dt_s, out / "steps.csv")
+    run = LocalSwarm(sc, find_scenario(scenario), out, seed, start_delay, relay, say=console.print)
+    run.prepare()
+    console.print(f"wrote {out / 'keys'} and {run.swarm_path}", soft_wrap=True)
+    console.print(
+        f"starting {n} drone processes; step 0 at +{run.start_delay_s:.1f} s, {sc.duration_s:g} s of scenario"
+    )
+    console.print(run.network_line(), soft_wrap=True)
+    run.run()
+    g = gather_steps(run.nodes_dir, n, sc.steps, sc.dt_s, out / "records.csv")
+    up = run.up_after_step0()
+    world = ScenarioWorld.build(sc)
+    log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills)
+    extra = {
+        "launch": {
+            "processes": n,
+            "start_delay_s": round(run.start_delay_s, 2),
+            "up_after_step0_s": {str(d): t for d, t in up.items()},
+            "fault_relay": run.relay is not None,
+            "relay_counters": getattr(run, "relay_counters", {}),
+            "steps_with_records_differing": [r["step"] for r in g.rows if not r["identical"]],
+            "interrupted": run.interrupted,
+        }
+    }
+    result = write_results(log, out, extra)
+    print_mission_summary(result.summary)
+    late = {d: t for d, t in up.items() if t is None or t > 0}
+    if late:
+        worst = max((t for t in late.values() if t is not None), default=None)
+        never = [d for d, t in late.items() if t is None]
+        console.print(
+            f"[red]warning[/]: {len(late)} of {n} drone processes were not up at step 0"
+            + (f" (the last {worst:.1f} s after it)" if worst is not None else "")
+            + (f"; never up: {', '.join(map(str, never))}" if never else "")
+            + "; the steps before a quorum was up are skipped: give a longer --start-delay",
+            soft_wrap=True,
+        )
     skipped = len(g.rows) - g.committed
-    same = "yes" if g.all_identical else "NO"
+    same = "yes" if g.all_identical else "[red]NO[/]"
     console.print(
         f"{g.committed} of {len(g.rows)} steps committed, {skipped} skipped; "
         f"every node's records identical: {same}"
     )
-    console.print(
-        f"wrote {out / 'steps.csv'} and {nodes_dir}/drone-<id>.(steps.jsonl, events.jsonl, log, sqlite)",
-        soft_wrap=True,
-    )
-    if interrupted:
+    for p in [
+        out / "steps.csv",
+        out / "summary.json",
+        out / "scenario.json",
+        *mission_figures(result, out),
+        out / "records.csv",
+    ]:
+        console.print(f"wrote {p}", soft_wrap=True)
+    files = "drone-<id>.(steps.jsonl, events.jsonl, sent.csv, log, sqlite)"
+    console.print(f"wrote {run.nodes_dir}/{files}", soft_wrap=True)
+    if run.interrupted:
         err_console.print("interrupted")
         sys.exit(130)
     if not g.all_identical:

@@ -425,12 +425,17 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
 
 def run_and_write(sc: Scenario, out: Path, progress: Any = None) -> MissionResult:
     """Run a mission and write steps.csv, summary.json and scenario.json into ``out``."""
+    return write_results(run_mission(sc, progress), out)
+
+
+def write_results(log: MissionLog, out: Path, extra: dict[str, Any] | None = None) -> MissionResult:
+    """A mission log's steps.csv, summary.json (with ``extra`` fields added) and scenario.json
+    in ``out``: a simulated mission's, or a networked run's (``swarmraft launch``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    log = run_mission(sc, progress)
     errors = error_series(log)
-    summary = summarize(log, errors)
+    summary = {**summarize(log, errors), **(extra or {})}
     write_rows(out / "steps.csv", STEP_COLUMNS, step_rows(log, errors))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "scenario.json").write_text(json.dumps(sc.model_dump(mode="json"), indent=2) + "\n")
+    (out / "scenario.json").write_text(json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n")
     return MissionResult(log, errors, summary)

@@ -40,16 +40,24 @@ def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 
 
 def prepare_swarm(
-    out: Path, scenario_file: Path, n: int, start_unix_s: float, seed: int | None = None
+    out: Path,
+    scenario_file: Path,
+    n: int,
+    start_unix_s: float,
+    seed: int | None = None,
+    ports: list[int] | None = None,
+    advertise: dict[int, tuple[str, int]] | None = None,
 ) -> tuple[Path, SwarmFile]:
     """Keys (``out/keys``), a copy of the scenario (``out/scenario.toml``) and a swarm file
-    (``out/swarm.toml``) for n drones on 127.0.0.1, each on a free UDP port; the swarm
-    file's path and its contents (paths resolved)."""
+    (``out/swarm.toml``) for n drones on 127.0.0.1, each binding ``ports[i - 1]`` (default:
+    free UDP ports) and advertising ``advertise[i]`` (default: the address it binds; a fault
+    relay's port otherwise); the swarm file's path and its contents (paths resolved)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_keys(out / "keys", n)
     shutil.copyfile(scenario_file, out / "scenario.toml")
-    ports = free_udp_ports(n)
+    ports = ports or free_udp_ports(n)
+    advertise = advertise or {}
     swarm = SwarmFile.model_validate(
         {
             "scenario": "scenario.toml",
@@ -60,7 +68,7 @@ def prepare_swarm(
             "drones": {
                 i: {
                     "bind": f"127.0.0.1:{port}",
-                    "advertise": f"127.0.0.1:{port}",
+                    "advertise": "{}:{}".format(*advertise.get(i, ("127.0.0.1", port))),
                     "key": f"keys/drone-{i}.key",
                 }
                 for i, port in enumerate(ports, start=1)
@@ -82,6 +90,7 @@ class NodeProcess:
     log: Path
     proc: subprocess.Popen | None = None
     starts: int = 0
+    paused: bool = False
 
     def start(self) -> None:
         cmd = [
@@ -108,11 +117,28 @@ class NodeProcess:
             assert self.proc is not None
             self.proc.send_signal(signal.SIGKILL)
             self.proc.wait()
+        self.paused = False
+
+    def pause(self) -> None:
+        """SIGSTOP: the process is frozen (its socket still queues what arrives)."""
+        if self.alive and not self.paused:
+            assert self.proc is not None
+            self.proc.send_signal(signal.SIGSTOP)
+            self.paused = True
+
+    def resume(self) -> None:
+        """SIGCONT after a pause."""
+        if self.alive and self.paused:
+            assert self.proc is not None
+            self.proc.send_signal(signal.SIGCONT)
+        self.paused = False
 
     def terminate(self) -> None:
+        """SIGTERM (a clean stop); a paused process is resumed to receive it."""
         if self.alive:
             assert self.proc is not None
             self.proc.send_signal(signal.SIGTERM)
+            self.resume()
 
     def wait(self, timeout: float) -> int | None:
         if self.proc is None:

@@ -59,6 +59,8 @@ _logger = logging.getLogger(__name__)
 END_GRACE_S = 1.5
 #: Records older than this many steps when applied do not realign the INS (replayed after a restart).
 REALIGN_STEPS = 5
+#: A drone remembers what it reported this many steps back, for its step file.
+REPORTED_KEPT = 100
 
 
 class NodeConfigError(ValueError):
@@ -129,6 +131,13 @@ def _jsonable(x: np.ndarray) -> list:
     return [[None if not np.isfinite(v) else round(float(v), 4) for v in row] for row in np.atleast_2d(x)]
 
 
+def _levels(x: np.ndarray | None) -> list | None:
+    """Protection levels for JSON: null where none (nan), "inf" where not protected."""
+    if x is None:
+        return None
+    return ["inf" if np.isposinf(v) else None if not np.isfinite(v) else round(float(v), 4) for v in x]
+
+
 class DroneHost:
     """Drone ``drone_id`` of ``swarm``; ``await run()`` until the scenario ends or a stop."""
 
@@ -181,6 +190,7 @@ class DroneHost:
         self._verifying: asyncio.Future | None = None  # the leader's verification in its thread
         self._backlog: list[Report] = []  # reports that arrived meanwhile
         self._decide_later: list[int] = []
+        self._reported: dict[int, list] = {}  # step -> the position this drone reported
 
     # -- files ------------------------------------------------------------------------------
     @property
@@ -194,6 +204,10 @@ class DroneHost:
     @property
     def events_path(self) -> Path:
         return self.out / f"drone-{self.id}.events.jsonl"
+
+    @property
+    def sent_path(self) -> Path:
+        return self.out / f"drone-{self.id}.sent.csv"
 
     def _read_written_steps(self) -> None:
         """Steps already in the step file (from before a restart); a torn last line is cut."""
@@ -240,6 +254,11 @@ class DroneHost:
         self._read_written_steps()
         self._steps = self.steps_path.open("a")
         self._events = self.events_path.open("a")
+        new_sent = not self.sent_path.exists()
+        self._sent_file = self.sent_path.open("a")
+        if new_sent:
+            self._sent_file.write("step,raft,reports\n")
+        self._sent_mark = (0, 0)
         self._stopped = loop.create_future()
         try:
             hs = self.storage.initial_state()
@@ -288,8 +307,11 @@ class DroneHost:
             self._disk.shutdown(wait=True)
             self._cpu.shutdown(wait=True)
             self._finish_event()
+            if (k := getattr(self, "_begun", None)) is not None:
+                self._count_sent(k + 1)  # the last step's datagrams
             self._steps.close()
             self._events.close()
+            self._sent_file.close()
             self.storage.close()
         return 0
 
@@ -370,6 +392,7 @@ class DroneHost:
         if addr is None:
             self.counters["no_address"] += 1
             return
+        self.counters["sent_raft" if isinstance(obj, Message) else "sent_reports"] += 1
         try:
             data = self.signer.seal(obj)
         except wire.WireError as exc:
@@ -444,9 +467,32 @@ class DroneHost:
         else:
             self._send(lead, report)
 
+    def _count_sent(self, k: int) -> None:
+        """One line of ``drone-<id>.sent.csv``: the Raft datagrams and reports sent since the
+        previous step began, counted to step k - 1 (written when step k begins)."""
+        now = (self.counters["sent_raft"], self.counters["sent_reports"])
+        if k > 0:
+            raft, reports = now[0] - self._sent_mark[0], now[1] - self._sent_mark[1]
+            self._sent_file.write(f"{k - 1},{raft},{reports}\n")
+            self._sent_file.flush()
+        self._sent_mark = now
+
+    def _late(self, k: int, by_s: float) -> bool:
+        """Whether step k's moment plus ``by_s`` has passed: a timer that fires that late (the
+        process was frozen, or starved of CPU) must not act for a step that is over."""
+        return time.time() > self.swarm.start_unix_s + k * self.sc.dt_s + by_s
+
     def _step(self, k: int) -> None:
+        self._count_sent(k)
+        self._begun = k
+        if self._late(k, self.sc.protocol.deadline_ms / 1000):
+            self.counters["steps_missed_late"] += 1  # no reading is taken for a step that is over
+            return
         self._reports = getattr(self, "_reports", {})
         self._reports[k] = self._report(k)
+        self._reported[k] = _jsonable(self._reports[k].position)[0]
+        for old in [s for s in self._reported if s < k - REPORTED_KEPT]:
+            del self._reported[old]
         for old in [s for s in self._reports if s < k - 2]:
             del self._reports[old]
         self._sent_to = {s: v for s, v in self._sent_to.items() if s >= k - 2}
@@ -456,6 +502,8 @@ class DroneHost:
         """Resend step k's report if the leader changed (or became known) since it was sent
         (the wire has no acknowledgement, unlike the simulator's missions)."""
         report = getattr(self, "_reports", {}).get(k)
+        if self._late(k, self.sc.protocol.deadline_ms / 1000):
+            return
         lead = self.node.lead
         if report is not None and lead is not None and lead != self._sent_to.get(k):
             self._deliver_report(report)
@@ -468,6 +516,9 @@ class DroneHost:
             self._decide(report.step)
 
     def _deadline(self, k: int) -> None:
+        if self._late(k, self.sc.protocol.deadline_ms / 1000 + self.sc.dt_s):
+            self.counters["deadlines_missed_late"] += 1  # a record this late would be stale
+            return
         if self.node.role == Role.LEADER:
             self._decide(k)
 
@@ -525,7 +576,9 @@ class DroneHost:
             return
         now = time.time()
         for s in range(before + 1, rec.step):
-            self._write_step({"step": s, "committed": False, "status": "skipped"})
+            self._write_step(
+                {"step": s, "committed": False, "status": "skipped", "reported": self._reported.get(s)}
+            )
         self._write_step(
             {
                 "step": rec.step,
@@ -539,6 +592,9 @@ class DroneHost:
                 "faulty": _ids(rec.faulty),
                 "missing": _ids(rec.missing),
                 "positions": _jsonable(rec.positions),
+                "hpl": _levels(rec.hpl),
+                "vpl": _levels(rec.vpl),
+                "reported": self._reported.get(rec.step),
                 "applied_unix_s": round(now, 4),
             }
         )

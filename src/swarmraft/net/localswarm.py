@@ -1,0 +1,212 @@
+"""A scenario run as a swarm of real drone processes on this machine (what ``swarmraft launch``
+does): keys and swarm file, one ``swarmraft node`` process per drone on 127.0.0.1, a fault
+relay between them when the scenario's network needs one, the scenario's faults applied to the
+processes and the relay at their times, and the end waited for. Gathering the results is
+`net.results`' job.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from swarmraft.net.launch import (
+    NODES_DIR,
+    NodeProcess,
+    current_leader,
+    default_start_delay_s,
+    events,
+    free_udp_ports,
+    prepare_swarm,
+)
+from swarmraft.net.relay import RelayThread
+from swarmraft.sim.network import LinkModel
+from swarmraft.sim.scenario import Scenario
+
+#: How long after the scenario's end launch waits for the drones to stop by themselves.
+END_WAIT_S = 15.0
+
+RelayMode = Literal["auto", "on", "off"]
+
+
+def needs_relay(sc: Scenario) -> bool:
+    """Whether the scenario's network is more than loopback gives: loss, duplication or
+    reordering, or partition, heal or loss faults. (Its delay alone does not count: 1-3 ms
+    of radio delay against loopback's tens of microseconds changes little.)"""
+    net = sc.network
+    return bool(net.loss or net.duplicate or net.reorder) or any(
+        f.kind in ("partition", "heal", "loss") for f in sc.fault
+    )
+
+
+@dataclass
+class Action:
+    at_s: float  # after step 0
+    kind: str
+    run: Callable[[], str]  # what it did, in words
+
+
+@dataclass
+class LocalSwarm:
+    """``sc`` (read from ``scenario_file``) as processes, its files in ``out``."""
+
+    sc: Scenario
+    scenario_file: Path
+    out: Path
+    seed: int | None = None
+    start_delay_s: float | None = None
+    relay_mode: RelayMode = "auto"
+    say: Callable[[str], None] = print
+    events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
+    kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
+    interrupted: bool = False
+
+    def __post_init__(self) -> None:
+        self.out = Path(self.out)
+        self.n = self.sc.drones
+        self.nodes_dir = self.out / NODES_DIR
+        self.relay: RelayThread | None = None
+        if self.relay_mode == "on" or (self.relay_mode == "auto" and needs_relay(self.sc)):
+            net = self.sc.network
+            self.link = LinkModel(tuple(net.delay_ms), net.loss, net.duplicate, net.reorder)
+        else:
+            self.link = None
+
+    # -- setting up ---------------------------------------------------------------------------
+    def prepare(self) -> None:
+        n = self.n
+        delay = default_start_delay_s(n) if self.start_delay_s is None else self.start_delay_s
+        self.start_delay_s = delay
+        ports = free_udp_ports(2 * n)  # the drones' and the relay's, all distinct
+        advertise = None
+        if self.link is not None:
+            targets = {i: ("127.0.0.1", ports[i - 1]) for i in range(1, n + 1)}
+            self.relay = RelayThread(targets, self.link, self.sc.seed)
+            advertise = self.relay.start(ports={i: ports[n + i - 1] for i in range(1, n + 1)})
+        self.start_unix_s = time.time() + delay
+        self.swarm_path, self.swarm = prepare_swarm(
+            self.out, self.scenario_file, n, self.start_unix_s, self.seed, ports[:n], advertise
+        )
+        self.procs = {
+            i: NodeProcess(i, self.swarm_path, self.nodes_dir / f"drone-{i}.log") for i in range(1, n + 1)
+        }
+
+    def network_line(self) -> str:
+        net = self.sc.network
+        if self.link is None:
+            why = "--relay off" if self.relay_mode == "off" else "nothing to apply"
+            return f"network: direct loopback, no fault relay ({why}; the scenario's delay is not applied)"
+        return (
+            f"network: through the fault relay: delay {net.delay_ms[0]:g}-{net.delay_ms[1]:g} ms, "
+            f"loss {net.loss:.0%}, duplication {net.duplicate:.0%}, reordering {net.reorder:.0%}"
+        )
+
+    # -- faults -------------------------------------------------------------------------------
+    def actions(self) -> list[Action]:
+        """The scenario's faults as actions on the processes and the relay, in time order."""
+        acts: list[Action] = []
+        for f in self.sc.fault:
+            if f.kind == "crash":
+                kill = lambda d=f.drone: self._kill(d, f"drone {d} killed (SIGKILL)")  # noqa: E731
+                acts.append(Action(f.at_s, f.kind, kill))
+            elif f.kind == "crash-leader":
+                acts.append(Action(f.at_s, f.kind, self._kill_leader))
+            elif f.kind == "restart":
+                acts.append(Action(f.at_s, f.kind, lambda d=f.drone: self._restart(d)))
+            elif f.kind == "pause":
+                who = [f.drone] if f.drone is not None else list(range(1, self.n + 1))
+                acts.append(Action(f.at_s, f.kind, lambda w=who, s=f.for_s: self._pause(w, s)))
+                acts.append(Action(f.at_s + f.for_s, "resume", lambda w=who: self._resume(w)))
+            else:
+                acts.append(Action(f.at_s, f.kind, lambda f=f: self._network_fault(f)))
+        return sorted(acts, key=lambda a: a.at_s)
+
+    def _kill(self, drone: int, what: str) -> str:
+        if not self.procs[drone].alive:
+            return f"crash: drone {drone} is not running, nothing killed"
+        self.procs[drone].kill()
+        self.kills.setdefault(drone, []).append(time.time())
+        return what
+
+    def _kill_leader(self) -> str:
+        alive = [i for i, p in self.procs.items() if p.alive and not p.paused]
+        lead = current_leader(self.nodes_dir, alive)
+        if lead is None:
+            return "crash-leader: no leader known, nothing killed"
+        return self._kill(lead[0], f"leader {lead[0]} (term {lead[1]}) killed (SIGKILL)")
+
+    def _restart(self, drone: int) -> str:
+        if self.procs[drone].alive:
+            return f"restart: drone {drone} is running, nothing started"
+        self.procs[drone].start()
+        return f"drone {drone} restarted on its SQLite file"
+
+    def _names(self, who: list[int]) -> str:
+        return "every drone" if len(who) == self.n else ", ".join(f"drone {d}" for d in who)
+
+    def _pause(self, who: list[int], for_s: float) -> str:
+        for d in who:
+            self.procs[d].pause()
+        return f"{self._names(who)} paused (SIGSTOP) for {for_s:g} s"
+
+    def _resume(self, who: list[int]) -> str:
+        for d in who:
+            self.procs[d].resume()
+        return f"{self._names(who)} resumed (SIGCONT)"
+
+    def _network_fault(self, f) -> str:  # noqa: ANN001 (a FaultConfig)
+        if self.relay is None:
+            return f"{f.kind}: not applied (no fault relay: --relay off)"
+        r = self.relay
+        if f.kind == "partition":
+            r.call(r.relay.partition, f.groups)
+            return f"partition {f.groups} (fault relay)"
+        if f.kind == "heal":
+            r.call(r.relay.heal)
+            return "network healed (fault relay)"
+        r.call(r.relay.set_all, loss=f.value)
+        return f"loss set to {f.value:.0%} (fault relay)"
+
+    # -- running ------------------------------------------------------------------------------
+    def run(self) -> None:
+        """Start every process, apply the faults at their times, wait for the end (or Ctrl-C:
+        ``interrupted``), then stop every process and the relay."""
+        sc = self.sc
+        try:
+            for p in self.procs.values():
+                p.start()
+            for a in self.actions():
+                while time.time() < self.start_unix_s + a.at_s:
+                    time.sleep(0.01)
+                what = a.run()
+                self.events.append((round(time.time() - self.start_unix_s, 2), what))
+                self.say(f"{a.at_s:g} s: {what}")
+            end = self.start_unix_s + sc.steps * sc.dt_s + END_WAIT_S
+            while any(p.alive for p in self.procs.values()) and time.time() < end:
+                time.sleep(0.1)
+        except KeyboardInterrupt:
+            self.interrupted = True
+        finally:
+            self.stop()
+
+    def up_after_step0(self) -> dict[int, float | None]:
+        """For each drone, seconds from step 0 to its first start event (negative: up before
+        step 0; None: never up)."""
+        out: dict[int, float | None] = {}
+        for d in range(1, self.n + 1):
+            starts = [e["t"] for e in events(self.nodes_dir, d) if e["event"] == "start"]
+            out[d] = round(starts[0] - self.start_unix_s, 2) if starts else None
+        return out
+
+    def stop(self) -> None:
+        for p in self.procs.values():
+            p.terminate()
+        for p in self.procs.values():
+            if p.wait(10) is None:
+                p.kill()
+        if self.relay is not None:
+            self.relay_counters = dict(self.relay.counters())
+            self.relay.stop()

@@ -1,0 +1,127 @@
+"""A networked run's results as the simulator's `MissionLog`, so ``swarmraft launch`` writes
+the same steps.csv, summary.json and figures as ``swarmraft mission`` (the experiments and viz
+layers take it from there).
+
+What the world determines (truth, GNSS, spoofing, outages, INS alone) comes from the scenario
+as each drone computed it (`sim.mission.world_log`); what the swarm did comes from the drones'
+files (docs/net.md): the committed records (the first drone's line for each step; every
+drone's record hash goes to ``node_records`` so disagreement shows), the position each drone
+reported, the leader of each record's term (from the role events), the latency from a step's
+start to the first drone applying its record, the datagrams sent per step (``sent.csv``), and
+whether each process was up (its start and stop events, and the times launch SIGKILLed it).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from swarmraft.net.launch import read_jsonl
+from swarmraft.sim.mission import MissionLog, ins_aligned_in_outages, world_log
+from swarmraft.sim.sensing import ScenarioWorld
+
+
+def _floats(row: list | None) -> np.ndarray:
+    if row is None:
+        return np.full(3, np.nan)
+    return np.array([np.nan if v is None else float(v) for v in row])
+
+
+def _levels(values: list | None, n: int) -> np.ndarray:
+    if values is None:
+        return np.full(n, np.nan)
+    return np.array([np.inf if v == "inf" else np.nan if v is None else float(v) for v in values])
+
+
+def _up_intervals(events: list[dict], kills: list[float]) -> list[tuple[float, float]]:
+    """(from, to) unix times a drone's process was up: from each start event to the next stop
+    event or SIGKILL (or for ever)."""
+    marks = sorted(
+        [(e["t"], 1) for e in events if e["event"] == "start"]
+        + [(e["t"], 0) for e in events if e["event"] == "stop"]
+        + [(t, 0) for t in kills]
+    )
+    out, since = [], None
+    for t, up in marks:
+        if up and since is None:
+            since = t
+        elif not up and since is not None:
+            out.append((since, t))
+            since = None
+    if since is not None:
+        out.append((since, np.inf))
+    return out
+
+
+def launch_log(
+    world: ScenarioWorld,
+    nodes_dir: Path,
+    start_unix_s: float,
+    events: list[tuple[float, str]],
+    kills: dict[int, list[float]] | None = None,
+) -> MissionLog:
+    """The mission log of a networked run of ``world.sc`` whose drones wrote into
+    ``nodes_dir``, step 0 at ``start_unix_s``; ``events`` (s after step 0, what) are launch's
+    faults and ``kills`` the unix times it SIGKILLed each drone."""
+    sc = world.sc
+    n, S, dt = sc.drones, sc.steps + 1, sc.dt_s
+    log = world_log(world)
+    ins_aligned_in_outages(log, world.drift)
+    log.detector_params = dict(world.protocol.detector_params)
+    log.events = list(events)
+    log.raft_messages = np.zeros(S, int)
+    log.report_messages = np.zeros(S, int)
+    step_start = start_unix_s + np.arange(S) * dt
+    leader_of_term: dict[int, int] = {}
+    first_apply = np.full(S, np.inf)
+    for d in range(1, n + 1):
+        i = d - 1
+        evs = read_jsonl(nodes_dir / f"drone-{d}.events.jsonl")
+        for e in evs:
+            if e["event"] == "role" and e.get("role") == "leader":
+                leader_of_term.setdefault(int(e["term"]), d)
+        for a, b in _up_intervals(evs, (kills or {}).get(d, [])):
+            log.alive[:, i] |= (step_start >= a) & (step_start < b)
+        recs = []
+        for row in read_jsonl(nodes_dir / f"drone-{d}.steps.jsonl"):
+            k = int(row["step"])
+            if not 0 <= k < S:
+                continue
+            if row.get("reported") is not None:
+                log.reported[k, i] = _floats(row["reported"])
+            if not row["committed"]:
+                continue
+            recs.append((k, row["record"]))
+            first_apply[k] = min(first_apply[k], row["applied_unix_s"])
+            if log.committed[k]:
+                continue
+            log.committed[k] = True
+            log.status[k] = row["status"]
+            log.term[k] = int(row["term"])
+            log.verified[k] = np.array([_floats(p) for p in row["positions"]])
+            log.hpl[k], log.vpl[k] = _levels(row.get("hpl"), n), _levels(row.get("vpl"), n)
+            for f in row["faulty"]:
+                log.faulty[k, f - 1] = True
+            for m in row["missing"]:
+                log.missing[k, m - 1] = True
+        log.node_records[d] = sorted(recs)
+        sent = nodes_dir / f"drone-{d}.sent.csv"
+        if sent.exists():
+            with sent.open(newline="") as f:
+                for r in csv.DictReader(f):
+                    try:
+                        k, raft, reports = int(r["step"]), int(r["raft"]), int(r["reports"])
+                    except (TypeError, ValueError):  # a torn last line after a SIGKILL
+                        continue
+                    if 0 <= k < S:
+                        log.raft_messages[k] += raft
+                        log.report_messages[k] += reports
+    log.leader = np.array(
+        [leader_of_term.get(int(t), 0) if c else 0 for t, c in zip(log.term, log.committed, strict=True)]
+    )
+    with np.errstate(invalid="ignore"):
+        log.latency_ms = np.where(np.isfinite(first_apply), (first_apply - step_start) * 1000, np.nan)
+    log.status = log.status.astype(str)
+    return log

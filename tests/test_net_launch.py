@@ -1,0 +1,117 @@
+"""`swarmraft launch` as a user runs it: real drone processes on 127.0.0.1 behind the fault
+relay (20 % loss and 20 % duplication on every link), a drone SIGKILLed, every process frozen
+with SIGSTOP for 2 s and resumed, a partition and its heal; every drone ends with identical
+records, the steps go on after each fault, and launch writes what `swarmraft mission` writes."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import tomllib
+
+from swarmraft.experiments.mission import STEP_COLUMNS
+from swarmraft.net.launch import events, read_jsonl
+
+SCENARIO = """
+name = "launch-faults"
+seed = 5
+drones = 5
+duration_s = 30
+
+[network]
+loss = 0.2
+duplicate = 0.2
+
+[protocol]
+detector = "joint"
+
+[[spoof]]
+kind = "jump"
+drones = [3]
+start_s = 0
+magnitude = 30
+
+[[fault]]
+kind = "crash"
+drone = 5
+at_s = 14
+
+[[fault]]
+kind = "pause"
+at_s = 17
+for_s = 2
+
+[[fault]]
+kind = "partition"
+at_s = 22
+groups = [[1], [2, 3, 4]]
+
+[[fault]]
+kind = "heal"
+at_s = 25
+"""
+
+
+def test_launch_through_the_fault_relay_with_a_crash_a_pause_and_a_partition(tmp_path):
+    scenario = tmp_path / "faults.toml"
+    scenario.write_text(SCENARIO)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", str(scenario), "--out", str(out)]
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=150, env={**os.environ, "COLUMNS": "200"}
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    for line in (
+        "network: through the fault relay: delay 1-3 ms, loss 20%, duplication 20%",
+        "14 s: drone 5 killed (SIGKILL)",
+        "17 s: every drone paused (SIGSTOP) for 2 s",
+        "19 s: every drone resumed (SIGCONT)",
+        "22 s: partition [[1], [2, 3, 4]] (fault relay)",
+        "25 s: network healed (fault relay)",
+        "every node's records identical: yes",
+    ):
+        assert line in done.stdout, line
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["records_identical_on_all_nodes"] is True
+    relay = summary["launch"]["relay_counters"]
+    assert relay["lost"] > 0 and relay["duplicated"] > 0 and relay["cut"] > 0
+    # the duplicates arrive and are dropped as replays, never applied twice
+    stops = {i: [e for e in events(out / "nodes", i) if e["event"] == "stop"] for i in range(1, 6)}
+    assert not stops[5]  # SIGKILLed: no clean stop
+    for i in range(1, 5):
+        (stop,) = stops[i]
+        assert stop["reason"] == "end of scenario"
+        assert stop["verifier"].get("replayed", 0) > 0
+        assert stop["counters"].get("internal_error", 0) == 0
+        assert stop["counters"].get("replayed_record_differs", 0) == 0
+
+    # what `swarmraft mission` writes
+    with (out / "steps.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == tuple(STEP_COLUMNS) and len(rows) == 301 * 5
+    for name in ("error_over_time", "swarm_maps", "consensus_latency", "messages_per_step"):
+        assert (out / "figures" / f"{name}.png").stat().st_size > 10_000
+    committed = {int(r["step"]): r["committed"] == "1" for r in rows}
+    # frozen 17-19 s: no step of the pause commits (its timers fire late and are dropped)
+    assert not any(committed[k] for k in range(171, 190))
+    # the steps go on in the 5 s after the crash, the resume and the heal (20 % loss can cost
+    # a second or two of elections now and then)
+    for lo in (141, 190, 250):
+        assert sum(committed[k] for k in range(lo, lo + 50)) >= 10, lo
+    # the dead drone is not alive after its crash, and the spoofed drone is flagged
+    alive5 = [r["alive"] == "1" for r in rows if r["drone"] == "5"]
+    assert not any(alive5[141:]) and any(alive5[:140])
+    (det,) = summary["detections"]  # judged as the simulator's missions are
+    assert det["drone"] == 3 and det["judged_steps"] >= 50 and det["flagged_fraction"] >= 0.9
+
+    # drone 1 was cut off 22-25 s: the records of those steps reached it only after the heal
+    step0 = tomllib.loads((out / "swarm.toml").read_text())["start_unix_s"]
+    applied1 = {r["step"]: r for r in read_jsonl(out / "nodes" / "drone-1.steps.jsonl") if r["committed"]}
+    others = {r["step"]: r for r in read_jsonl(out / "nodes" / "drone-2.steps.jsonl") if r["committed"]}
+    cut_steps = [k for k in range(222, 245) if k in others]
+    assert len(cut_steps) >= 10 and all(k in applied1 for k in cut_steps)
+    for k in cut_steps:
+        assert others[k]["applied_unix_s"] < step0 + 25 <= applied1[k]["applied_unix_s"]
+    with (out / "records.csv").open(newline="") as f:
+        assert all(r["identical"] == "True" for r in csv.DictReader(f))

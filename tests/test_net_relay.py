@@ -142,3 +142,20 @@ def test_it_binds_the_ports_it_is_given_and_releases_them_on_stop():
         s.close()
     for s in socks:
         s.close()
+
+
+def test_a_drone_answers_a_stranger_back_through_the_relay(drones):
+    """What a drone sends to its own relay port goes to the last outside address that reached
+    that port, as through a NAT: how `swarmraft status` is answered through the relay."""
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.settimeout(2.0)
+    try:
+        stranger.sendto(b"how are you?", drones.via[2])
+        assert drones.received(2) == [b"how are you?"]
+        drones.socks[2].sendto(b"fine", drones.via[2])  # a drone answers the address it heard from
+        data, addr = stranger.recvfrom(100)
+        assert data == b"fine" and addr == drones.via[2]
+        assert drones.relay.counters()["answered_outside"] == 1
+        assert drones.received(2, 0.05) == []  # not looped back to the drone itself
+    finally:
+        stranger.close()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from swarmraft.cli.app import console, err_console, main
+from swarmraft.cli.app import console, err_console, main, print_table
 from swarmraft.cli.options import OutFolder
 
 
@@ -201,4 +201,58 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
         err_console.print("interrupted")
         sys.exit(130)
     if not g.all_identical:
+        sys.exit(1)
+
+
+@main.command("status")
+@click.option(
+    "--swarm",
+    "swarm_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="the swarm file (swarm.toml) of the running swarm",
+)
+@click.option(
+    "--timeout",
+    type=click.FloatRange(min=0.05, max=60),
+    default=1.0,
+    show_default=True,
+    help="seconds to wait for the answers",
+)
+@click.option("--json", "as_json", is_flag=True, help="print the answers as JSON")
+def status(swarm_path: Path, timeout: float, as_json: bool) -> None:
+    """Ask every drone of a running swarm for its state: role, term, leader, commit and
+    applied index, last log index, last step applied, whether it hears a quorum, the
+    datagrams it dropped, and the leader's view of each follower (match and next index).
+
+    The drones answer at their advertised addresses (through launch's fault relay too) with a
+    signed answer, checked against the swarm's public keys. Exit status 0 if every drone
+    answered, 1 if some did not.
+    """
+    import json
+
+    from swarmraft.cli.tables import peers_table, status_table
+    from swarmraft.net.keys import KeyFileError, load_public_keys
+    from swarmraft.net.status import ask
+    from swarmraft.net.swarmfile import SwarmFileError, load_swarm
+
+    try:
+        swarm = load_swarm(swarm_path)
+        publics = load_public_keys(swarm.public_keys)
+    except (SwarmFileError, KeyFileError) as exc:
+        raise click.BadParameter(str(exc), param_hint="--swarm") from None
+    answers = ask(swarm, publics, timeout)
+    if as_json:
+        out = {str(i): a.fields or {"problem": a.problem} for i, a in answers.items()}
+        click.echo(json.dumps(out, indent=2))
+    else:
+        print_table(status_table(answers))
+        leaders = [a for a in answers.values() if a.fields and a.fields["role"] == "leader"]
+        for lead in sorted(leaders, key=lambda a: -a.fields["term"]):  # type: ignore[index]
+            print_table(peers_table(lead.drone, lead.fields))  # type: ignore[arg-type]
+        silent = [i for i, a in answers.items() if a.fields is None]
+        if silent:
+            who = ", ".join(map(str, silent))
+            console.print(f"[red]{len(silent)} of {len(answers)} drones did not answer[/]: {who}")
+    if any(a.fields is None for a in answers.values()):
         sys.exit(1)

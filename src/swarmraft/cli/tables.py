@@ -152,3 +152,63 @@ def calibration_table(rows: Sequence[tuple[int, object]], title: str) -> tuple[T
             f"{c.recovery_std:.3f}",
         )
     return t, CALIBRATION_LEGEND
+
+
+STATUS_LEGEND = (
+    "term, commit, applied, last: the drone's Raft term, commit index, applied index and last "
+    "log index; step: the last step it applied; now: the step the clock is at, of the steps; "
+    "reach: peers heard from within the longest election timeout (a follower hears only its "
+    "leader); quorum: a leader with those makes a majority, or a follower heard its leader; "
+    "dropped: datagrams its Verifier refused, by reason."
+)
+
+PEERS_LEGEND = (
+    "The leader's view of each follower: match, the highest log index known to be on it; next, "
+    "the next index it sends; state: probe (one append at a time until answered) or replicate "
+    "(pipelined); heard: ms since the leader last accepted a datagram from it."
+)
+
+
+def status_table(answers: Mapping[int, object]) -> tuple[Table, str]:
+    """One row per drone of `swarmraft status` (answers: drone -> net.status.Answer)."""
+    t = _table("Drones")
+    for h in ("drone", "address", "role", "term", "leader", "commit", "applied", "last", "step", "now"):
+        t.add_column(h, justify="left" if h in ("address", "role") else "right", no_wrap=True)
+    t.add_column("reach", justify="right", no_wrap=True)
+    t.add_column("quorum", no_wrap=True)
+    t.add_column("dropped")
+    for i, a in answers.items():
+        addr = "{}:{}".format(*a.address)
+        f = a.fields
+        if f is None:
+            t.add_row(str(i), addr, f"[red]{a.problem}[/]", *[""] * 10)
+            continue
+        dropped = ", ".join(f"{k} {v}" for k, v in sorted(f["dropped"].items())) or "none"
+        quorum = "yes" if f["quorum"] else "[red]NO[/]"
+        t.add_row(
+            str(i),
+            addr,
+            f["role"],
+            str(f["term"]),
+            str(f["leader"] or "-"),
+            str(f["commit"]),
+            str(f["applied"]),
+            str(f["last_index"]),
+            str(f["last_step"]),
+            f"{f['step_now']}/{f['steps']}",
+            f"{f['reachable_peers']}/{len(f['peers'])}",
+            quorum,
+            dropped,
+        )
+    return t, STATUS_LEGEND
+
+
+def peers_table(leader: int, fields: Mapping[str, object]) -> tuple[Table, str]:
+    """The leader's per-follower progress (its status answer's ``peers``)."""
+    t = _table(f"Leader {leader}'s followers")
+    for h in ("peer", "match", "next", "state", "heard"):
+        t.add_column(h, justify="left" if h == "state" else "right", no_wrap=True)
+    for p, e in fields["peers"].items():  # type: ignore[union-attr]
+        heard = "never" if e["heard_ms"] is None else f"{e['heard_ms']} ms"
+        t.add_row(str(p), str(e.get("match", "-")), str(e.get("next", "-")), e.get("state", "-"), heard)
+    return t, PEERS_LEGEND

@@ -46,6 +46,7 @@ from swarmraft.estimation.registry import one_line
 from swarmraft.net import wire
 from swarmraft.net.auth import Accepted, Signer, Verifier, public_key
 from swarmraft.net.keys import KeyFileError, load_private_key, load_public_keys
+from swarmraft.net.status import ReplyLimit, encode_reply
 from swarmraft.net.swarmfile import SwarmFile, load_swarm
 from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
@@ -191,6 +192,9 @@ class DroneHost:
         self._backlog: list[Report] = []  # reports that arrived meanwhile
         self._decide_later: list[int] = []
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
+        self._heard: dict[int, float] = {}  # peer -> monotonic time of its last accepted datagram
+        self._reply_limit = ReplyLimit()
+        self._up_since = time.monotonic()
 
     # -- files ------------------------------------------------------------------------------
     @property
@@ -405,14 +409,78 @@ class DroneHost:
         self._send(m.to, m)
 
     def _on_datagram(self, data: bytes, addr: Address) -> None:
+        if (nonce := wire.status_request_nonce(data)) is not None:
+            self._answer_status(nonce, addr)
+            return
         got = self.verifier.check(data, f"{addr[0]}:{addr[1]}")
         if not isinstance(got, Accepted):
             return
+        self._heard[got.sender] = time.monotonic()
         if isinstance(got.message, Message):
             m = got.message
             self._push(lambda: self.node.step(m))
         else:
             self._on_report(got.message)
+
+    # -- status -----------------------------------------------------------------------------
+    def status_fields(self) -> dict[str, Any]:
+        """What `swarmraft status` shows of this drone (net.status): Raft state, steps, whom
+        it heard from lately, the leader's view of each follower, the datagrams dropped."""
+        st, node = self.node.status, self.node
+        now = time.monotonic()
+        # a peer counts as reachable if heard within the longest election timeout
+        window_s = 2 * self.raft_config.election_tick * self.swarm.tick_ms / 1000
+        peers = {}
+        for p in self.raft_config.peers:
+            age = now - self._heard[p] if p in self._heard else None
+            entry: dict[str, Any] = {"heard_ms": None if age is None else round(age * 1000)}
+            pr = node.prs.get(p) if node.role == Role.LEADER else None
+            if pr is not None:
+                entry.update(match=pr.match, next=pr.next, state="probe" if pr.probe else "replicate")
+            peers[str(p)] = entry
+        ages = [e["heard_ms"] for e in peers.values() if e["heard_ms"] is not None]
+        reachable = sum(age <= window_s * 1000 for age in ages)
+        n = len(self.swarm.drones)
+        return {
+            "drone": self.id,
+            "pid": os.getpid(),
+            "uptime_s": round(now - self._up_since, 1),
+            "role": str(st.role),
+            "term": st.term,
+            "leader": st.leader,
+            "commit": st.commit,
+            "applied": st.applied,
+            "last_index": st.last_index,
+            "last_step": self.drone.state.last_step,
+            "step_now": int((time.time() - self.swarm.start_unix_s) // self.sc.dt_s),
+            "steps": self.sc.steps,
+            "reachable_peers": reachable,
+            "quorum": self._has_quorum(reachable, n, window_s),
+            "peers": peers,
+            "dropped": {k: v for k, v in self.verifier.counters.items() if v and k != "accepted"},
+            "accepted": self.verifier.counters.get("accepted", 0),
+        }
+
+    def _has_quorum(self, reachable: int, n: int, window_s: float) -> bool:
+        """A leader: it and the peers it heard within ``window_s`` make a majority (as
+        CheckQuorum counts). A follower: it heard its leader within ``window_s``."""
+        if self.node.role == Role.LEADER:
+            return reachable + 1 >= n // 2 + 1
+        lead = self.node.lead
+        heard = self._heard.get(lead) if lead is not None else None
+        return heard is not None and time.monotonic() - heard <= window_s
+
+    def _answer_status(self, nonce: int, addr: Address) -> None:
+        if not self._reply_limit.allow():
+            self.counters["status_refused"] += 1
+            return
+        self.counters["status_answered"] += 1
+        try:
+            payload = encode_reply({"nonce": nonce, **self.status_fields()})
+            self.transport.send(addr, self.signer.seal_payload(wire.Kind.STATUS_REPLY, payload))
+        except Exception:
+            self.counters["internal_error"] += 1
+            _logger.exception("drone %d: status answer failed", self.id)
 
     # -- steps ------------------------------------------------------------------------------
     def _loop_time_of(self, unix_s: float) -> float:

@@ -8,7 +8,10 @@ while it binds B_i: a datagram for drone i reaches R_i, the relay names its send
 source address (drone j binds B_j and sends from it), draws the copies that arrive and their
 delays from the link j -> i, and sends each from R_i to B_i. A datagram from an address that is
 no drone's is forwarded as if from drone 0, a sender in no group: it passes when there is no
-partition, and counts as ``foreign``. The relay does not look inside datagrams.
+partition, and counts as ``foreign``; what drone i sends to its own relay port R_i (its answer
+to such a datagram: it answers the address it heard from) goes back to the last outside
+address that reached R_i, as a NAT would (`swarmraft status` through the relay). The relay
+does not look inside datagrams.
 
 `Relay` lives on an asyncio loop; `RelayThread` runs one on a loop of its own in a background
 thread, so a synchronous program (``swarmraft launch``) can start it and change the network
@@ -58,6 +61,7 @@ class Relay:
         self.sender_of = {(host, port): i for i, (host, port) in self.targets.items()}
         self.ports: dict[int, _Port] = {}
         self.counters: Counter[str] = Counter()
+        self._stranger: dict[int, Address] = {}  # drone -> the last outside address that sent to it
         self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self, host: str = "127.0.0.1", ports: dict[int, int] | None = None) -> dict[int, Address]:
@@ -86,9 +90,16 @@ class Relay:
 
     def _forward(self, to: int, data: bytes, source: Address) -> None:
         frm = self.sender_of.get(source, FOREIGN)
+        self.counters["received"] += 1
         if frm == FOREIGN:
             self.counters["foreign"] += 1
-        self.counters["received"] += 1
+            self._stranger[to] = source
+        elif frm == to:  # drone `to` answers whoever last reached it from outside (a NAT's way)
+            port, back = self.ports[to], self._stranger.get(to)
+            if back is not None and port.transport is not None and not port.transport.is_closing():
+                port.transport.sendto(data, back)
+                self.counters["answered_outside"] += 1
+            return
         delays = self.network.delays(self.rng, frm, to)
         if not delays:
             cut = (self.network.cuts or self.network.groups) and not self.network.connected(frm, to)

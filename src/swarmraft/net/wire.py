@@ -72,6 +72,8 @@ class Kind(IntEnum):
 
     RAFT = 1  # a raft.types.Message
     REPORT = 2  # a protocol.records.Report, as Report.encode() writes it (signed)
+    STATUS_REQUEST = 3  # `swarmraft status` asking a drone: sender 0, seq a nonce, no payload, no signature
+    STATUS_REPLY = 4  # a drone's answer: UTF-8 JSON (net.status), signed by the drone
 
 
 class WireError(ValueError):
@@ -137,11 +139,29 @@ def encode_payload(obj: Message | Report) -> tuple[Kind, bytes]:
 
 
 def decode_payload(kind: Kind, payload: bytes) -> Message | Report:
+    """The Raft message or report a payload holds; a status datagram is not for a drone."""
     if kind == Kind.RAFT:
         return decode_message(payload)
     if kind == Kind.REPORT:
         return decode_report(payload)
-    raise WireError("unknown_kind", f"kind {kind}")
+    raise WireError("unknown_kind", f"kind {kind} ({kind.name}) is not for a drone")
+
+
+def status_request(nonce: int) -> bytes:
+    """A status request: a header of kind STATUS_REQUEST, sender 0, the nonce as its sequence
+    number, no payload, and 64 zero bytes where a signature would be (it is not signed: anyone
+    may ask; the answer is signed)."""
+    return frame(Kind.STATUS_REQUEST, 0, nonce, b"") + bytes(SIGNATURE_SIZE)
+
+
+def status_request_nonce(data: bytes) -> int | None:
+    """The nonce of a well-formed status request, or None if ``data`` is not one."""
+    if len(data) != HEADER_SIZE + SIGNATURE_SIZE:
+        return None
+    magic, version, kind, sender, seq, length = _HEADER.unpack_from(data)
+    if (magic, version, kind, sender, length) != (MAGIC, VERSION, Kind.STATUS_REQUEST, 0, 0):
+        return None
+    return seq
 
 
 def encode_message(msg: Message) -> bytes:

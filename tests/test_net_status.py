@@ -119,3 +119,17 @@ def test_status_of_a_running_swarm_and_of_a_killed_drone(tmp_path):
         swarm.stop_all()
     stop = [e for e in events(swarm.nodes_dir, lead["drone"]) if e["event"] == "stop"][-1]
     assert stop["counters"]["status_answered"] >= 1 and stop["counters"]["status_refused"] >= 1
+
+
+def test_status_refuses_a_bad_swarm_file_with_one_line(tmp_path):
+    done = status_cli(tmp_path / "nope.toml")
+    assert done.returncode == 2
+    assert (
+        done.stderr.strip()
+        == f"error: --swarm: {tmp_path / 'nope.toml'}: no such file (see `python -m swarmraft status --help`)"
+    )
+    bad = tmp_path / "swarm.toml"
+    bad.write_text("version = 1\n")
+    done = status_cli(bad)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert done.stderr.startswith(f"error: --swarm: {bad}")

@@ -56,15 +56,19 @@ def keygen(n: int, out: Path, force: bool) -> None:
     )
 
 
-@main.command("node")
-@click.option("--id", "drone_id", type=click.IntRange(min=1), required=True, help="this drone's id (1..n)")
-@click.option(
+#: The --swarm option of node and status: the swarm file (docs/net.md).
+SWARM_FILE = click.option(
     "--swarm",
     "swarm_path",
     type=click.Path(dir_okay=False, path_type=Path),
     required=True,
     help="the swarm file (swarm.toml: addresses, keys, scenario, start time; docs/net.md)",
 )
+
+
+@main.command("node")
+@click.option("--id", "drone_id", type=click.IntRange(min=1), required=True, help="this drone's id (1..n)")
+@SWARM_FILE
 @click.option("-v", "--verbose", is_flag=True, help="log every dropped datagram and role change (INFO)")
 def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     """Run drone ID of a networked swarm until its scenario ends, or SIGTERM / Ctrl-C.
@@ -205,13 +209,7 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
 
 
 @main.command("status")
-@click.option(
-    "--swarm",
-    "swarm_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="the swarm file (swarm.toml) of the running swarm",
-)
+@SWARM_FILE
 @click.option(
     "--timeout",
     type=click.FloatRange(min=0.05, max=60),

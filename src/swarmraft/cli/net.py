@@ -106,14 +106,24 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     default=None,
     help="seconds from launch to step 0, for the processes to start (default: 3 + 2.5 x drones / cores)",
 )
-def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None) -> None:
+@click.option(
+    "--replay",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="a sensor log every drone replays instead of the scenario's model (docs/records.md)",
+)
+def launch(
+    scenario: str, out: Path, seed: int | None, start_delay: float | None, replay: Path | None
+) -> None:
     """Run a scenario as a real swarm on this machine: one `swarmraft node` process per drone
     on 127.0.0.1 over UDP. Writes OUT/keys, OUT/scenario.toml and OUT/swarm.toml, starts the
     processes, applies the scenario's crash faults to them (crash and crash-leader: SIGKILL;
     restart: start again on the same SQLite file), waits for the scenario's end, and gathers
     every node's step file into OUT/steps.csv (one row per step: committed or skipped, status,
     flags, and whether every node holds the same record). Partition, heal and loss faults are
-    not applied (they need a fault relay). Ctrl-C stops every process.
+    not applied (they need a fault relay). Ctrl-C stops every process. With --replay LOG the
+    drones' readings come from LOG (copied to OUT/sensors.csv); the scenario still sets the
+    protocol, the steps and the faults.
     """
     import time
 
@@ -134,9 +144,13 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
             f"{out} holds a swarm already (swarm.toml); choose another folder", param_hint="--out"
         )
     n = sc.drones
+    if replay is not None:
+        from swarmraft.net.sources.replay import read_sensor_log
+
+        read_sensor_log(replay, n)  # a bad log is one line (file:line: field: problem) before anything starts
     delay = default_start_delay_s(n) if start_delay is None else start_delay
     start = time.time() + delay
-    swarm_path, swarm = prepare_swarm(out, find_scenario(scenario), n, start, seed)
+    swarm_path, swarm = prepare_swarm(out, find_scenario(scenario), n, start, seed, replay)
     nodes_dir = out / NODES_DIR
     procs = {i: NodeProcess(i, swarm_path, nodes_dir / f"drone-{i}.log") for i in range(1, n + 1)}
     console.print(f"wrote {out / 'keys'} and {swarm_path}", soft_wrap=True)

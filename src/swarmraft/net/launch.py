@@ -40,15 +40,25 @@ def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 
 
 def prepare_swarm(
-    out: Path, scenario_file: Path, n: int, start_unix_s: float, seed: int | None = None
+    out: Path,
+    scenario_file: Path,
+    n: int,
+    start_unix_s: float,
+    seed: int | None = None,
+    replay: Path | None = None,
 ) -> tuple[Path, SwarmFile]:
     """Keys (``out/keys``), a copy of the scenario (``out/scenario.toml``) and a swarm file
-    (``out/swarm.toml``) for n drones on 127.0.0.1, each on a free UDP port; the swarm
+    (``out/swarm.toml``) for n drones on 127.0.0.1, each on a free UDP port; with ``replay``
+    (a sensor log), a copy of it (``out/sensors.csv``) that every drone replays. The swarm
     file's path and its contents (paths resolved)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_keys(out / "keys", n)
     shutil.copyfile(scenario_file, out / "scenario.toml")
+    source = {"kind": "scenario"}
+    if replay is not None:
+        shutil.copyfile(replay, out / "sensors.csv")
+        source = {"kind": "replay", "log": "sensors.csv"}
     ports = free_udp_ports(n)
     swarm = SwarmFile.model_validate(
         {
@@ -62,6 +72,7 @@ def prepare_swarm(
                     "bind": f"127.0.0.1:{port}",
                     "advertise": f"127.0.0.1:{port}",
                     "key": f"keys/drone-{i}.key",
+                    "source": source,
                 }
                 for i, port in enumerate(ports, start=1)
             },

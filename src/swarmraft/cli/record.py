@@ -42,7 +42,10 @@ def record(scenario: str, out: Path, seed: int | None, seconds: float | None) ->
         raise click.BadParameter(f"no folder {out.parent}", param_hint="--out")
     sc = load_scenario(scenario, seed=seed)
     log = record_world(ScenarioWorld.build(sc), seconds)
-    write_sensor_log(out, log)
+    try:
+        write_sensor_log(out, log)
+    except OSError as exc:
+        raise click.BadParameter(f"cannot write {out}: {exc.strerror or exc}", param_hint="--out") from None
     steps = len(log.t_s) // sc.drones
     console.print(
         f"wrote {out} ({steps} steps of {sc.dt_s:g} s x {sc.drones} drones, {len(log.t_s)} lines)",

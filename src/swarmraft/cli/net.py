@@ -122,7 +122,15 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     help="put the fault relay between the drones (delay, loss, duplication, reordering, partitions); "
     "auto: when the scenario has loss, duplication, reordering or partition/heal/loss faults",
 )
-def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None, relay: str) -> None:
+@click.option(
+    "--replay",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="a sensor log every drone replays instead of the scenario's model (docs/records.md)",
+)
+def launch(
+    scenario: str, out: Path, seed: int | None, start_delay: float | None, relay: str, replay: Path | None
+) -> None:
     """Run a scenario as a real swarm on this machine: one `swarmraft node` process per drone
     on 127.0.0.1 over signed UDP datagrams.
 
@@ -134,6 +142,9 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
     summary.json, scenario.json, figures/) from the drones' files, and OUT/records.csv (per
     step: how many drones hold it and whether their records are identical). Exit status 1 if
     any step's records differ between drones; Ctrl-C stops every process (status 130).
+
+    With --replay LOG the drones' readings come from LOG (copied to OUT/sensors.csv); the
+    scenario still sets the protocol, the steps and the faults.
     """
     from swarmraft.cli.missions import mission_figures, print_mission_summary
     from swarmraft.experiments.mission import load_scenario, write_results
@@ -149,7 +160,11 @@ def launch(scenario: str, out: Path, seed: int | None, start_delay: float | None
             f"{out} holds a swarm already (swarm.toml); choose another folder", param_hint="--out"
         )
     n = sc.drones
-    run = LocalSwarm(sc, find_scenario(scenario), out, seed, start_delay, relay, say=console.print)
+    if replay is not None:
+        from swarmraft.net.sources.replay import read_sensor_log
+
+        read_sensor_log(replay, n)  # a bad log is one line (file:line: field: problem) before anything starts
+    run = LocalSwarm(sc, find_scenario(scenario), out, seed, start_delay, relay, replay, say=console.print)
     run.prepare()
     console.print(f"wrote {out / 'keys'} and {run.swarm_path}", soft_wrap=True)
     console.print(

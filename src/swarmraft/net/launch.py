@@ -47,15 +47,21 @@ def prepare_swarm(
     seed: int | None = None,
     ports: list[int] | None = None,
     advertise: dict[int, tuple[str, int]] | None = None,
+    replay: Path | None = None,
 ) -> tuple[Path, SwarmFile]:
     """Keys (``out/keys``), a copy of the scenario (``out/scenario.toml``) and a swarm file
     (``out/swarm.toml``) for n drones on 127.0.0.1, each binding ``ports[i - 1]`` (default:
     free UDP ports) and advertising ``advertise[i]`` (default: the address it binds; a fault
-    relay's port otherwise); the swarm file's path and its contents (paths resolved)."""
+    relay's port otherwise); with ``replay`` (a sensor log), a copy of it (``out/sensors.csv``)
+    that every drone replays. The swarm file's path and its contents (paths resolved)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_keys(out / "keys", n)
     shutil.copyfile(scenario_file, out / "scenario.toml")
+    source = {"kind": "scenario"}
+    if replay is not None:
+        shutil.copyfile(replay, out / "sensors.csv")
+        source = {"kind": "replay", "log": "sensors.csv"}
     ports = ports or free_udp_ports(n)
     advertise = advertise or {}
     swarm = SwarmFile.model_validate(
@@ -70,6 +76,7 @@ def prepare_swarm(
                     "bind": f"127.0.0.1:{port}",
                     "advertise": "{}:{}".format(*advertise.get(i, ("127.0.0.1", port))),
                     "key": f"keys/drone-{i}.key",
+                    "source": source,
                 }
                 for i, port in enumerate(ports, start=1)
             },

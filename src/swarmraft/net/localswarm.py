@@ -59,6 +59,7 @@ class LocalSwarm:
     seed: int | None = None
     start_delay_s: float | None = None
     relay_mode: RelayMode = "auto"
+    replay: Path | None = None  # a sensor log every drone replays (net.sources.replay)
     say: Callable[[str], None] = print
     events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
@@ -88,7 +89,7 @@ class LocalSwarm:
             advertise = self.relay.start(ports={i: ports[n + i - 1] for i in range(1, n + 1)})
         self.start_unix_s = time.time() + delay
         self.swarm_path, self.swarm = prepare_swarm(
-            self.out, self.scenario_file, n, self.start_unix_s, self.seed, ports[:n], advertise
+            self.out, self.scenario_file, n, self.start_unix_s, self.seed, ports[:n], advertise, self.replay
         )
         self.procs = {
             i: NodeProcess(i, self.swarm_path, self.nodes_dir / f"drone-{i}.log") for i in range(1, n + 1)

@@ -8,12 +8,13 @@ driving order (`sim.runtime`, `sim.mission`):
 - then every Ready in order: persist hard state and entries to the drone's `SQLiteStorage`
   (in a worker thread; the node is not touched until the write returns, so nothing that
   depends on it is sent before), send the messages, apply the committed entries, ``advance``;
-- every step k (at ``start_unix_s + k * step_s``): the drone's report from the scenario's world
-  (`sim.sensing.ScenarioWorld`, the same draws every process makes from the swarm file) to the
-  leader it knows; a resend at half the deadline if the leader changed; the leader verifies
-  at the deadline (or once every recent drone reported) and proposes the record. The
-  verification runs in a worker thread (the detector takes tens of ms); the drone is not
-  touched until it returns (reports wait, applying waits);
+- every step k (at ``start_unix_s + k * step_s``): the drone's report from its sensor source
+  (`net.sources`: by default the scenario's world, `sim.sensing.ScenarioWorld`, the same draws
+  every process makes from the swarm file; or a recorded log, or MAVLink) to the leader it
+  knows (no report when the source has no reading); a resend at half the deadline if the
+  leader changed; the leader verifies at the deadline (or once every recent drone reported)
+  and proposes the record. The verification runs in a worker thread (the detector takes tens
+  of ms); the drone is not touched until it returns (reports wait, applying waits);
 - every applied step is one JSON line (flushed) in ``drone-<id>.steps.jsonl``; starts, role
   changes and the final counters go to ``drone-<id>.events.jsonl``.
 
@@ -46,6 +47,7 @@ from swarmraft.estimation.registry import one_line
 from swarmraft.net import wire
 from swarmraft.net.auth import Accepted, Signer, Verifier, public_key
 from swarmraft.net.keys import KeyFileError, load_private_key, load_public_keys
+from swarmraft.net.sources import SourceError, open_source
 from swarmraft.net.status import ReplyLimit, encode_reply
 from swarmraft.net.swarmfile import SwarmFile, load_swarm
 from swarmraft.net.transport import Address, UDPTransport
@@ -177,9 +179,11 @@ class DroneHost:
             max_entries_per_msg=entries_per_append(n),
         )
         warm_up_detector(self.world)
-        # INS: aligned at the start to the true position, then to each fresh verified position
-        self.ins_base_t = np.zeros(n)
-        self.ins_base_pos = self.world.traj.positions[0].copy()
+        # readings, and the INS aligned to each fresh verified position
+        try:
+            self.source = open_source(swarm, drone_id, self.world)
+        except SourceError as exc:
+            raise NodeConfigError(str(exc)) from None
         self.counters: Counter[str] = Counter()
         self._pending: list[Callable[[], None]] = []
         self._wake: asyncio.Event | None = None
@@ -317,6 +321,7 @@ class DroneHost:
             self._events.close()
             self._sent_file.close()
             self.storage.close()
+            self.source.close()
         return 0
 
     def _finish_event(self) -> None:
@@ -516,14 +521,11 @@ class DroneHost:
         self._timers.append(loop.call_at(end, self.stop, "end of scenario"))
 
     def _report(self, k: int) -> Report | None:
-        w, i = self.world, self.index
-        ins = w.ins_estimate(k, self.ins_base_t, self.ins_base_pos)
-        ranges = w.measured_ranges(k, ins)[i]
-        if w.has_fix[k, i]:
-            pos, source, innov = w.fix[k, i], "gnss", w.innovation(k, i)
-        else:
-            pos, source, innov = ins[i], "ins", None
-        return self.drone.make_report(k, pos, source, ranges, innov)
+        r = self.source.reading(k)
+        if r is None:
+            self.counters["no_reading"] += 1
+            return None
+        return self.drone.make_report(k, r.position, r.kind, r.ranges, r.innovation)
 
     def _deliver_report(self, report: Report) -> None:
         lead = self.node.lead
@@ -558,13 +560,15 @@ class DroneHost:
             return
         self._reports = getattr(self, "_reports", {})
         self._reports[k] = self._report(k)
-        self._reported[k] = _jsonable(self._reports[k].position)[0]
+        if self._reports[k] is not None:
+            self._reported[k] = _jsonable(self._reports[k].position)[0]
         for old in [s for s in self._reported if s < k - REPORTED_KEPT]:
             del self._reported[old]
         for old in [s for s in self._reports if s < k - 2]:
             del self._reports[old]
         self._sent_to = {s: v for s, v in self._sent_to.items() if s >= k - 2}
-        self._deliver_report(self._reports[k])
+        if self._reports[k] is not None:
+            self._deliver_report(self._reports[k])
 
     def _retry(self, k: int) -> None:
         """Resend step k's report if the leader changed (or became known) since it was sent
@@ -669,8 +673,7 @@ class DroneHost:
         i = self.index
         k_now = min(int((now - self.swarm.start_unix_s) / self.sc.dt_s), self.sc.steps)
         if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - REALIGN_STEPS:
-            self.ins_base_t[i] = self.world.traj.t[rec.step]
-            self.ins_base_pos[i] = rec.positions[i]
+            self.source.realign(rec.step, rec.positions[i])
 
 
 def run_node(swarm_path: str | Path, drone_id: int) -> int:

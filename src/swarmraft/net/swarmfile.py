@@ -8,12 +8,18 @@ public keys file, the scenario (a shipped name or a path) with an optional seed 
 length overriding the scenario's, the Raft tick in ms, the wall-clock time step 0 starts, and
 the folder each drone writes its files to. Relative paths are relative to the swarm file's
 folder. See docs/net.md for an example.
+
+Per drone, optionally, where its sensor readings come from (``[drones.N.source]``, `SourceConfig`:
+the scenario's model, a recorded log, or MAVLink; docs/records.md), and for MAVLink sources the
+swarm's geodetic ``[origin]``, the point the local ENU frame starts from.
 """
 
 from __future__ import annotations
 
 import ipaddress
+import re
 from pathlib import Path
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -51,10 +57,49 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
+class ScenarioSourceConfig(_Strict):
+    kind: Literal["scenario"] = Field("scenario", description="readings computed from the scenario (default)")
+
+
+class ReplaySourceConfig(_Strict):
+    kind: Literal["replay"] = Field(description="readings replayed from a recorded log")
+    log: Path = Field(description="the sensor log (CSV, docs/records.md)")
+    max_age_s: float = Field(1.0, gt=0, description="a drone's last line older than this gives no reading, s")
+
+
+class MavlinkSourceConfig(_Strict):
+    kind: Literal["mavlink"] = Field(description="a live fix over MAVLink, ranges over UDP lines")
+    connect: str = Field(min_length=1, description="pymavlink connection string, e.g. udpin:0.0.0.0:14550")
+    ranges: str = Field(description="host:port the range lines arrive at (UDP)")
+    max_age_s: float = Field(1.0, gt=0, description="a fix or range older than this is not used, s")
+
+    @field_validator("ranges")
+    @classmethod
+    def _ranges(cls, v: str) -> str:
+        parse_address(v, bind=True)
+        return v
+
+    @property
+    def ranges_address(self) -> Address:
+        return parse_address(self.ranges, bind=True)
+
+
+SourceConfig = Annotated[
+    ScenarioSourceConfig | ReplaySourceConfig | MavlinkSourceConfig, Field(discriminator="kind")
+]
+
+
+class GeodeticOrigin(_Strict):
+    lat_deg: float = Field(ge=-90, le=90, description="WGS84 latitude of the local frame's origin, degrees")
+    lon_deg: float = Field(ge=-180, le=180, description="WGS84 longitude, degrees")
+    alt_m: float = Field(0.0, description="altitude of the origin, m (the datum GPS_RAW_INT's alt uses: MSL)")
+
+
 class DroneEntry(_Strict):
     bind: str = Field(description="host:port its UDP socket binds (0.0.0.0:port: every interface)")
     advertise: str = Field(description="host:port its peers send to")
     key: Path = Field(description="its private key file (drone-<id>.key, mode 0600)")
+    source: SourceConfig = Field(default_factory=ScenarioSourceConfig, description="its sensor readings")
 
     @field_validator("bind")
     @classmethod
@@ -87,6 +132,7 @@ class SwarmFile(_Strict):
     public_keys: Path = Field(description="swarm-keys.toml, every drone's public key")
     out: Path = Field(Path("."), description="folder for each drone's SQLite, step and event files")
     drones: dict[int, DroneEntry] = Field(min_length=1)
+    origin: GeodeticOrigin | None = Field(None, description="geodetic origin of the local ENU frame")
 
     @field_validator("version")
     @classmethod
@@ -108,6 +154,11 @@ class SwarmFile(_Strict):
                     f"drones.{i}.advertise: {self.drones[i].advertise} is drone {seen[addr]}'s too"
                 )
             seen[addr] = i
+            if self.drones[i].source.kind == "mavlink" and self.origin is None:
+                raise ValueError(
+                    f"drones.{i}.source: a mavlink source needs the swarm's [origin] "
+                    "(lat_deg, lon_deg, alt_m of the local frame's origin)"
+                )
         return self
 
     def resolved(self, base: Path) -> SwarmFile:
@@ -122,7 +173,14 @@ class SwarmFile(_Strict):
         scenario = self.scenario
         if "/" in scenario or scenario.endswith(".toml"):
             scenario = str(at(Path(scenario)))
-        drones = {i: d.model_copy(update={"key": at(d.key)}) for i, d in self.drones.items()}
+
+        def entry(d: DroneEntry) -> DroneEntry:
+            src = d.source
+            if isinstance(src, ReplaySourceConfig):
+                src = src.model_copy(update={"log": at(src.log)})
+            return d.model_copy(update={"key": at(d.key), "source": src})
+
+        drones = {i: entry(d) for i, d in self.drones.items()}
         return self.model_copy(
             update={
                 "public_keys": at(self.public_keys),
@@ -151,8 +209,21 @@ def load_swarm(path: str | Path) -> SwarmFile:
     try:
         swarm = SwarmFile.model_validate(data)
     except ValidationError as exc:
-        raise SwarmFileError(f"{path}: {one_line(exc, '')}") from None
+        raise SwarmFileError(f"{path}: {_source_paths(one_line(exc, ''))}") from None
     return swarm.resolved(path.parent)
+
+
+def _source_paths(text: str) -> str:
+    """A source's fields named as the file spells them (pydantic puts the kind in the path)."""
+    text = re.sub(r"\.source\.(scenario|replay|mavlink)\.", ".source.", text)
+    text = text.replace(
+        "Unable to extract tag using discriminator 'kind'", "no kind (scenario, replay or mavlink)"
+    )
+    return re.sub(
+        r"Input tag ('[^']*') found using 'kind' does not match any of the expected tags: [^;]*",
+        r"kind: \1 is not scenario, replay or mavlink",
+        text,
+    )
 
 
 def swarm_file_text(swarm: SwarmFile) -> str:
@@ -176,6 +247,15 @@ def swarm_file_text(swarm: SwarmFile) -> str:
         f"public_keys = {q(swarm.public_keys)}",
         f"out = {q(swarm.out)}",
     ]
+    if swarm.origin is not None:
+        o = swarm.origin
+        lines += [
+            "",
+            "[origin]",
+            f"lat_deg = {o.lat_deg!r}",
+            f"lon_deg = {o.lon_deg!r}",
+            f"alt_m = {o.alt_m!r}",
+        ]
     for i, d in sorted(swarm.drones.items()):
         lines += [
             "",
@@ -184,4 +264,8 @@ def swarm_file_text(swarm: SwarmFile) -> str:
             f"advertise = {q(d.advertise)}",
             f"key = {q(d.key)}",
         ]
+        if d.source.kind != "scenario":
+            lines += ["", f"[drones.{i}.source]"]
+            for name, value in d.source.model_dump().items():
+                lines.append(f"{name} = {q(value) if isinstance(value, str | Path) else repr(value)}")
     return "\n".join(lines) + "\n"

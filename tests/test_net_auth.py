@@ -323,3 +323,10 @@ def test_a_flood_of_bad_datagrams_logs_a_bounded_number_of_lines(caplog):
             v.check(b"junk")
     assert len(caplog.records) == 5
     assert v.counters["malformed"] == 1000
+
+
+def test_a_report_acknowledgement_is_accepted_only_by_the_drone_it_names():
+    ack = wire.ReportAck(step=41, to=2)
+    got = verifier(own_id=2).check(Signer(1, SEEDS[1]).seal(ack))
+    assert got == Accepted(sender=1, seq=1, kind=wire.Kind.REPORT_ACK, message=ack)
+    dropped(verifier(own_id=3).check(Signer(1, SEEDS[1]).seal(ack)), "wrong_recipient")

@@ -162,7 +162,7 @@ def test_wrong_magic_version_and_kind_are_refused():
         data[2] = version
         assert reason(wire.parse, bytes(data)) == "bad_version"
     data[2] = wire.VERSION
-    for kind in (0, 5, 255):
+    for kind in (0, 6, 255):
         data[3] = kind
         assert reason(wire.parse, bytes(data)) == "unknown_kind"
 
@@ -303,3 +303,20 @@ def test_flipping_any_byte_of_a_raft_payload_decodes_or_is_a_wire_error(msg, dat
         wire.decode_message(bytes(p))
     except WireError:
         pass
+
+
+@given(st.integers(0, U64), st.integers(0, U32))
+def test_a_report_acknowledgement_round_trips_in_12_bytes(step, to):
+    kind, payload = wire.encode_payload(wire.ReportAck(step, to))
+    assert kind == Kind.REPORT_ACK and payload == struct.pack("<QI", step, to)
+    assert wire.decode_payload(kind, payload) == wire.ReportAck(step, to)
+
+
+def test_an_acknowledgement_of_another_length_or_out_of_range_is_refused():
+    for payload in (b"", bytes(11), bytes(13)):
+        with pytest.raises(WireError, match="length_mismatch"):
+            wire.decode_payload(Kind.REPORT_ACK, payload)
+    with pytest.raises(WireError):
+        wire.encode_payload(wire.ReportAck(-1, 2))
+    with pytest.raises(WireError):
+        wire.encode_payload(wire.ReportAck(1, 2**32))

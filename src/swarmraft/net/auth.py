@@ -49,8 +49,8 @@ class Signer:
         self.next_seq = first_seq
         self._key = SigningKey(seed)
 
-    def seal(self, obj: Message | Report) -> bytes:
-        """The datagram carrying a Raft message or a signed report."""
+    def seal(self, obj: Message | Report | wire.ReportAck) -> bytes:
+        """The datagram carrying a Raft message, a signed report or a report's acknowledgement."""
         return self.seal_payload(*wire.encode_payload(obj))
 
     def seal_payload(self, kind: wire.Kind, payload: bytes) -> bytes:
@@ -132,7 +132,7 @@ class Accepted:
     sender: int
     seq: int
     kind: wire.Kind
-    message: Message | Report
+    message: Message | Report | wire.ReportAck
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,6 +237,9 @@ class Verifier:
                 return Dropped("sender_mismatch", f"Raft message from {message.frm}", d.sender)
             if self.own_id is not None and message.to != self.own_id:
                 return Dropped("wrong_recipient", f"Raft message to {message.to}", d.sender)
+        elif isinstance(message, wire.ReportAck):
+            if self.own_id is not None and message.to != self.own_id:
+                return Dropped("wrong_recipient", f"acknowledgement for drone {message.to}", d.sender)
         elif message.drone + 1 != d.sender:
             return Dropped("sender_mismatch", f"report of drone index {message.drone}", d.sender)
         return Accepted(d.sender, d.seq, d.kind, message)

@@ -197,6 +197,7 @@ class DroneHost:
         self._decide_later: list[int] = []
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
         self._heard: dict[int, float] = {}  # peer -> monotonic time of its last accepted datagram
+        self._acked: set[int] = set()  # steps whose report the leader acknowledged
         self._reply_limit = ReplyLimit()
         self._up_since = time.monotonic()
 
@@ -396,12 +397,13 @@ class DroneHost:
             self._event("role", role=now[0], term=now[1], leader=self.node.lead)
 
     # -- network ----------------------------------------------------------------------------
-    def _send(self, to: int, obj: Message | Report) -> None:
+    def _send(self, to: int, obj: Message | Report | wire.ReportAck) -> None:
         addr = self.peers.get(to)
         if addr is None:
             self.counters["no_address"] += 1
             return
-        self.counters["sent_raft" if isinstance(obj, Message) else "sent_reports"] += 1
+        sort = "raft" if isinstance(obj, Message) else "reports" if isinstance(obj, Report) else "acks"
+        self.counters[f"sent_{sort}"] += 1
         try:
             data = self.signer.seal(obj)
         except wire.WireError as exc:
@@ -424,6 +426,8 @@ class DroneHost:
         if isinstance(got.message, Message):
             m = got.message
             self._push(lambda: self.node.step(m))
+        elif isinstance(got.message, wire.ReportAck):
+            self._acked.add(got.message.step)
         else:
             self._on_report(got.message)
 
@@ -567,24 +571,36 @@ class DroneHost:
         for old in [s for s in self._reports if s < k - 2]:
             del self._reports[old]
         self._sent_to = {s: v for s, v in self._sent_to.items() if s >= k - 2}
+        self._acked = {s for s in self._acked if s >= k - 2}
         if self._reports[k] is not None:
             self._deliver_report(self._reports[k])
 
     def _retry(self, k: int) -> None:
-        """Resend step k's report if the leader changed (or became known) since it was sent
-        (the wire has no acknowledgement, unlike the simulator's missions)."""
+        """At half the deadline, resend step k's report if the leader did not acknowledge it,
+        or if the leader changed (or became known) since it was sent (as the simulator's
+        missions do)."""
         report = getattr(self, "_reports", {}).get(k)
         if self._late(k, self.sc.protocol.deadline_ms / 1000):
             return
         lead = self.node.lead
-        if report is not None and lead is not None and lead != self._sent_to.get(k):
-            self._deliver_report(report)
+        if report is None or lead is None:
+            return
+        if k in self._acked and lead == self._sent_to.get(k):
+            return
+        self.counters["reports_resent"] += 1
+        self._deliver_report(report)
 
     def _on_report(self, report: Report) -> None:
         if self._verifying is not None:
             self._backlog.append(report)
             return
-        if self.drone.receive(report) and self.drone.has_all(report.step) and self.node.role == Role.LEADER:
+        accepted = self.drone.receive(report)
+        if accepted:  # acknowledged, so the drone does not resend it (simulator: Mission._receive)
+            if report.drone == self.index:
+                self._acked.add(report.step)
+            else:
+                self._send(report.drone + 1, wire.ReportAck(report.step, report.drone + 1))
+        if accepted and self.drone.has_all(report.step) and self.node.role == Role.LEADER:
             self._decide(report.step)
 
     def _deadline(self, k: int) -> None:

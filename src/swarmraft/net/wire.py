@@ -10,7 +10,8 @@ Layout (little-endian, as `swarmraft.protocol.records`), offsets in bytes:
 
     0  magic    2  b"SR"
     2  version  1  VERSION (1)
-    3  kind     1  Kind: 1 RAFT, 2 REPORT (0 and 3-255 reserved)
+    3  kind     1  Kind: 1 RAFT, 2 REPORT, 3 STATUS_REQUEST, 4 STATUS_REPLY, 5 REPORT_ACK
+                   (0 and 6-255 reserved)
     4  sender   4  u32 sender id (the Raft node id, 1..n)
     8  seq      8  u64 per-sender sequence number, increasing
    16  length   4  u32 payload length in bytes
@@ -74,6 +75,18 @@ class Kind(IntEnum):
     REPORT = 2  # a protocol.records.Report, as Report.encode() writes it (signed)
     STATUS_REQUEST = 3  # `swarmraft status` asking a drone: sender 0, seq a nonce, no payload, no signature
     STATUS_REPLY = 4  # a drone's answer: UTF-8 JSON (net.status), signed by the drone
+    REPORT_ACK = 5  # the leader's acknowledgement of a report: a ReportAck
+
+
+@dataclass(frozen=True, slots=True)
+class ReportAck:
+    """The leader took drone ``to``'s report of ``step`` (so the drone need not resend it)."""
+
+    step: int
+    to: int
+
+
+_ACK = struct.Struct("<QI")  # step, the drone id it acknowledges
 
 
 class WireError(ValueError):
@@ -129,21 +142,30 @@ def parse(data: bytes) -> Datagram:
     return Datagram(Kind(kind), sender, seq, data[HEADER_SIZE:end], data[:end], data[end:])
 
 
-def encode_payload(obj: Message | Report) -> tuple[Kind, bytes]:
-    """A Raft message or a signed report as (kind, payload bytes)."""
+def encode_payload(obj: Message | Report | ReportAck) -> tuple[Kind, bytes]:
+    """A Raft message, a signed report or a report's acknowledgement as (kind, payload bytes)."""
     if isinstance(obj, Message):
         return Kind.RAFT, encode_message(obj)
     if isinstance(obj, Report):
         return Kind.REPORT, encode_report(obj)
+    if isinstance(obj, ReportAck):
+        _check_int("step", obj.step, _U64)
+        _check_int("to", obj.to, _U32)
+        return Kind.REPORT_ACK, _ACK.pack(obj.step, obj.to)
     raise WireError("bad_value", f"cannot encode a {type(obj).__name__}")
 
 
-def decode_payload(kind: Kind, payload: bytes) -> Message | Report:
-    """The Raft message or report a payload holds; a status datagram is not for a drone."""
+def decode_payload(kind: Kind, payload: bytes) -> Message | Report | ReportAck:
+    """The Raft message, report or acknowledgement a payload holds; a status datagram is not
+    for a drone."""
     if kind == Kind.RAFT:
         return decode_message(payload)
     if kind == Kind.REPORT:
         return decode_report(payload)
+    if kind == Kind.REPORT_ACK:
+        if len(payload) != _ACK.size:
+            raise WireError("length_mismatch", f"an acknowledgement of {len(payload)} bytes, not {_ACK.size}")
+        return ReportAck(*_ACK.unpack(payload))
     raise WireError("unknown_kind", f"kind {kind} ({kind.name}) is not for a drone")
 
 

@@ -1,8 +1,9 @@
 """Hostile datagrams for a drone's `Verifier`, each labelled with the reason it must be dropped:
 what the tests and benchmarks send at running drones (``tests/test_net_hostile.py``,
 ``benchmarks/bench_hostile.py``). No sockets, no clock: every draw from the generator passed in.
-`udp_socket_queue` reads what the kernel holds for a local UDP socket (Linux), so a sender can
-pace itself and count what the kernel dropped.
+Two helpers do I/O, for a sender on the same Linux machine: `udp_socket_queue` reads what the
+kernel holds for a local UDP socket (and how many datagrams it dropped: its buffer was full),
+and `send_paced` waits for room in it before each datagram, so the kernel drops none.
 
 The attacker holds one swarm member's private key (a compromised drone) and knows the others'
 ids. The kinds, in equal shares and a seeded random order, each with the drop reason the
@@ -27,6 +28,8 @@ one socket's datagrams); forged sequence numbers of other drones are above any r
 
 from __future__ import annotations
 
+import socket
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -148,3 +151,22 @@ def udp_socket_queue(port: int, host: str = "127.0.0.1") -> tuple[int, int] | No
         if f[1] == want:
             return int(f[4].split(":")[1], 16), int(f[-1])
     return None
+
+
+#: Bytes a target's socket may hold before `send_paced` sends it another small datagram; a large
+#: one waits for an empty queue. The default receive buffer is about 208 KiB, and a datagram
+#: takes more of it than its size (2.3 KiB for 1,000 bytes, 65-130 KiB for 64 KB).
+QUEUE_LIMIT = 64 * 1024
+
+
+def send_paced(sock: socket.socket, addr: tuple[str, int], data: bytes, timeout_s: float = 10.0) -> None:
+    """Send ``data`` to the local UDP socket at ``addr`` once its receive queue has room for it
+    (see QUEUE_LIMIT; without /proc/net/udp, at once). TimeoutError if it has none within
+    ``timeout_s``: its owner stopped reading."""
+    limit = 0 if len(data) > 4096 else QUEUE_LIMIT
+    end = time.monotonic() + timeout_s
+    while (q := udp_socket_queue(addr[1], addr[0])) is not None and q[0] > limit:
+        if time.monotonic() > end:
+            raise TimeoutError(f"{addr[0]}:{addr[1]} held {q[0]} bytes for {timeout_s:g} s")
+        time.sleep(0.0005)
+    sock.sendto(data, addr)

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from netrun import LoopbackSwarm, machine, window_stats
-from swarmraft.net.hostile import HostileFlood, send_paced, udp_socket_queue
+from swarmraft.net.hostile import HostileFlood, PacedSender, udp_socket_queue
 from swarmraft.net.keys import load_private_key
 from swarmraft.net.launch import current_leader
 
@@ -43,7 +43,7 @@ RATE_TARGET = 0.95
 
 def flood(swarm: LoopbackSwarm, target: int, count: int, rate: float, rng: np.random.Generator) -> tuple:
     """Send ``count`` hostile datagrams at drone ``target``: ``rate`` a second, or (rate 0) each
-    once its socket has room (`send_paced`); (labels sent, the kernel's drops at the target's
+    once its socket has room (`PacedSender`); (labels sent, the kernel's drops at the target's
     socket meanwhile or None, start and end unix times)."""
     attacker = swarm.n
     addr = swarm.swarm.drones[target].advertise_address
@@ -60,11 +60,12 @@ def flood(swarm: LoopbackSwarm, target: int, count: int, rate: float, rng: np.ra
     sent: Counter[str] = Counter()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     t0 = time.time()
+    paced = PacedSender(sock, addr)
     try:
-        send_paced(sock, addr, hostile.primer)
+        paced.send(hostile.primer)
         for i, h in enumerate(hostile):
             if rate <= 0:
-                send_paced(sock, addr, h.data)
+                paced.send(h.data)
             else:
                 if (wait := t0 + i / rate - time.time()) > 0:
                     time.sleep(wait)

@@ -13,7 +13,7 @@ from collections import Counter
 import numpy as np
 
 from swarmraft.net.auth import Verifier, public_key
-from swarmraft.net.hostile import KINDS, HostileFlood, send_paced, udp_socket_queue
+from swarmraft.net.hostile import KINDS, HostileFlood, PacedSender, udp_socket_queue
 from swarmraft.net.keys import load_private_key
 from swarmraft.net.launch import current_leader, events
 from test_net_node import STARTUP_S, Swarm, assert_identical_records
@@ -62,10 +62,11 @@ def test_ten_thousand_hostile_datagrams_at_the_leader_are_all_dropped_and_the_sw
         assert kernel_before is not None, "no /proc/net/udp entry for the target's socket"
         sent, flood_bytes = Counter(), len(flood.primer)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        paced = PacedSender(sock, addr)
         try:
-            send_paced(sock, addr, flood.primer)
+            paced.send(flood.primer)
             for h in flood:
-                send_paced(sock, addr, h.data)
+                paced.send(h.data)
                 sent[h.reason] += 1
                 flood_bytes += len(h.data)
             swarm.wait(lambda: udp_socket_queue(addr[1], addr[0])[0] == 0, 10, "the target to read the flood")

@@ -3,7 +3,7 @@ what the tests and benchmarks send at running drones (``tests/test_net_hostile.p
 ``benchmarks/bench_hostile.py``). No sockets, no clock: every draw from the generator passed in.
 Two helpers do I/O, for a sender on the same Linux machine: `udp_socket_queue` reads what the
 kernel holds for a local UDP socket (and how many datagrams it dropped: its buffer was full),
-and `send_paced` waits for room in it before each datagram, so the kernel drops none.
+and `PacedSender` waits for room in it, so the kernel drops none of what it sends.
 
 The attacker holds one swarm member's private key (a compromised drone) and knows the others'
 ids. The kinds, in equal shares and a seeded random order, each with the drop reason the
@@ -153,20 +153,39 @@ def udp_socket_queue(port: int, host: str = "127.0.0.1") -> tuple[int, int] | No
     return None
 
 
-#: Bytes a target's socket may hold before `send_paced` sends it another small datagram; a large
-#: one waits for an empty queue. The default receive buffer is about 208 KiB, and a datagram
-#: takes more of it than its size (2.3 KiB for 1,000 bytes, 65-130 KiB for 64 KB).
+#: Bytes a target's socket may hold before `PacedSender` sends it more; a large datagram waits for
+#: an empty queue. The default receive buffer is about 208 KiB, and a datagram takes more of it
+#: than its size (2.3 KiB for 1,000 bytes, 65-130 KiB for 64 KB).
 QUEUE_LIMIT = 64 * 1024
+#: Bytes of small datagrams sent between two looks at the queue (each look reads /proc/net/udp).
+LOOK_EVERY = 32 * 1024
 
 
-def send_paced(sock: socket.socket, addr: tuple[str, int], data: bytes, timeout_s: float = 10.0) -> None:
-    """Send ``data`` to the local UDP socket at ``addr`` once its receive queue has room for it
-    (see QUEUE_LIMIT; without /proc/net/udp, at once). TimeoutError if it has none within
+class PacedSender:
+    """Sends datagrams to a local UDP socket at ``addr`` no faster than its owner reads them, so
+    the kernel drops none: before a large one (over 4 KiB) it waits for an empty queue, and
+    every LOOK_EVERY bytes of small ones for a queue under QUEUE_LIMIT (without /proc/net/udp,
+    it sends at once). ``send`` raises TimeoutError if the queue does not drain within
     ``timeout_s``: its owner stopped reading."""
-    limit = 0 if len(data) > 4096 else QUEUE_LIMIT
-    end = time.monotonic() + timeout_s
-    while (q := udp_socket_queue(addr[1], addr[0])) is not None and q[0] > limit:
-        if time.monotonic() > end:
-            raise TimeoutError(f"{addr[0]}:{addr[1]} held {q[0]} bytes for {timeout_s:g} s")
-        time.sleep(0.0005)
-    sock.sendto(data, addr)
+
+    def __init__(self, sock: socket.socket, addr: tuple[str, int], timeout_s: float = 10.0) -> None:
+        self.sock, self.addr, self.timeout_s = sock, addr, timeout_s
+        self._unlooked = 0
+
+    def send(self, data: bytes) -> None:
+        if len(data) > 4096:
+            self._wait_for(0)
+        elif self._unlooked >= LOOK_EVERY:
+            self._wait_for(QUEUE_LIMIT)
+        self.sock.sendto(data, self.addr)
+        self._unlooked += len(data) + 1024  # the kernel's overhead per datagram, roughly
+
+    def _wait_for(self, limit: int) -> None:
+        end = time.monotonic() + self.timeout_s
+        while (q := udp_socket_queue(self.addr[1], self.addr[0])) is not None and q[0] > limit:
+            if time.monotonic() > end:
+                raise TimeoutError(
+                    f"{self.addr[0]}:{self.addr[1]} held {q[0]} bytes for {self.timeout_s:g} s"
+                )
+            time.sleep(0.001)
+        self._unlooked = 0

@@ -44,7 +44,8 @@ RATE_TARGET = 0.95
 def flood(swarm: LoopbackSwarm, target: int, count: int, rate: float, rng: np.random.Generator) -> tuple:
     """Send ``count`` hostile datagrams at drone ``target``: ``rate`` a second, or (rate 0) each
     once its socket has room (`PacedSender`); (labels sent, the kernel's drops at the target's
-    socket meanwhile or None, start and end unix times)."""
+    socket meanwhile or None, start and end unix times, this sender's CPU seconds: it shares
+    the machine's cores with the swarm)."""
     attacker = swarm.n
     addr = swarm.swarm.drones[target].advertise_address
     hostile = HostileFlood(
@@ -59,7 +60,7 @@ def flood(swarm: LoopbackSwarm, target: int, count: int, rate: float, rng: np.ra
     before = udp_socket_queue(addr[1], addr[0])
     sent: Counter[str] = Counter()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    t0 = time.time()
+    t0, cpu0 = time.time(), time.process_time()
     paced = PacedSender(sock, addr)
     try:
         paced.send(hostile.primer)
@@ -73,11 +74,11 @@ def flood(swarm: LoopbackSwarm, target: int, count: int, rate: float, rng: np.ra
             sent[h.reason] += 1
     finally:
         sock.close()
-    t1 = time.time()
+    t1, cpu = time.time(), time.process_time() - cpu0
     time.sleep(0.2)  # let the node read what is queued
     after = udp_socket_queue(addr[1], addr[0])
     kernel = after[1] - before[1] if before and after else None
-    return sent, kernel, t0, t1
+    return sent, kernel, t0, t1, cpu
 
 
 def main() -> None:
@@ -113,7 +114,7 @@ def main() -> None:
     )
     print()
     print(
-        f"{'round':>5}{'flood dg/s':>11}{'quiet/s':>9}{'flood/s':>9}{'ratio':>7}"
+        f"{'round':>5}{'flood dg/s':>11}{'its CPU':>8}{'quiet/s':>9}{'flood/s':>9}{'ratio':>7}"
         f"{'p50 q':>8}{'p50 f':>8}{'p99 q':>8}{'p99 f':>8}  target"
     )
     with tempfile.TemporaryDirectory(prefix="bench-hostile-") as tmp:
@@ -128,10 +129,10 @@ def main() -> None:
                 lead = current_leader(swarm.nodes_dir, running)
                 target = lead[0] if lead else 1
                 targets.add(target)
-                s, k, f0, f1 = flood(swarm, target, args.count, args.rate, rng)
+                s, k, f0, f1, cpu = flood(swarm, target, args.count, args.rate, rng)
                 sent += s
                 kernel_drops += k or 0
-                rows.append((r, quiet, (f0, f1)))
+                rows.append((r, quiet, (f0, f1), cpu))
                 t = time.time() + 1.0
                 swarm.sleep_until(t)
             swarm.sleep_until(time.time() + 1.0)
@@ -142,12 +143,13 @@ def main() -> None:
             t0 = swarm.step_start(0)
             return math.ceil((a - t0) / step_s), math.floor((b - t0) / step_s)
 
-        for r, quiet, flooded in rows:
+        for r, quiet, flooded, cpu in rows:
             q, f = window_stats(swarm, *steps_within(*quiet)), window_stats(swarm, *steps_within(*flooded))
             ratio = f.rate_per_s / q.rate_per_s if q.rate_per_s else float("nan")
             ok = ratio >= RATE_TARGET and f.skipped <= q.skipped
             print(
                 f"{r:>5}{args.count / (flooded[1] - flooded[0]):>11,.0f}"
+                f"{cpu / (flooded[1] - flooded[0]):>8.0%}"
                 f"{q.rate_per_s:>9.2f}{f.rate_per_s:>9.2f}{ratio:>7.2f}{q.latency_ms(50):>8.1f}"
                 f"{f.latency_ms(50):>8.1f}{q.latency_ms(99):>8.1f}{f.latency_ms(99):>8.1f}"
                 f"  {'met' if ok else 'MISSED'}"
@@ -157,6 +159,10 @@ def main() -> None:
                     f"round {r}: {f.rate_per_s:.2f} steps/s under the flood ({f.skipped} skipped), "
                     f"{q.rate_per_s:.2f} quiet ({q.skipped} skipped)"
                 )
+        print(
+            "columns: hostile datagrams per second sent; the sender's CPU (s per s); committed steps/s "
+            "quiet and under the flood, their ratio; commit latency p50, p99 (ms) quiet and under the flood"
+        )
         total = sum(sent.values())
         dropped, other_drops = Counter(), Counter()
         for i in running:

@@ -21,7 +21,7 @@ Targets (issue 10): n = 17: 10 steps/s sustained for 60 s, commit latency p99 <=
 this machine's cores (two on the project's machine), so the large swarms measure the machine
 as much as the code: report what is reached.
 
-Run: .venv/bin/python benchmarks/bench_net.py [--n 5,9,17,33] [--duration 60] [--warmup 5]
+Run: .venv/bin/python benchmarks/bench_net.py [--n 5,9,17,33] [--duration 60] [--warmup 5] [--runs 1]
 """
 
 from __future__ import annotations
@@ -134,6 +134,9 @@ def main() -> None:
         default=None,
         help="seconds from launch to step 0 (default: see start_delay_s)",
     )
+    ap.add_argument(
+        "--runs", type=int, default=1, help="runs per size (each a row; a run is a minute or more)"
+    )
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=None, help="keep each run's files here (default: removed)")
     ap.add_argument("--crypto-ops", type=int, default=500, help="datagrams per run of the crypto timing")
@@ -157,9 +160,10 @@ def main() -> None:
     )
     missed = []
     for n in sizes:
-        with tempfile.TemporaryDirectory(prefix=f"bench-net-{n}-") as tmp:
-            out = args.out / f"n{n}" if args.out else Path(tmp)
-            missed += run_one(n, args, out, seal_us, check_us)
+        for run in range(1, args.runs + 1):
+            with tempfile.TemporaryDirectory(prefix=f"bench-net-{n}-") as tmp:
+                out = args.out / f"n{n}-run{run}" if args.out else Path(tmp)
+                missed += run_one(n, args, out, seal_us, check_us)
     print()
     print(
         "columns: committed steps/s over the window; the fewest in any one second; steps skipped; "

@@ -64,7 +64,7 @@ def run_one(n: int, args: argparse.Namespace, out: Path, seal_us: float, check_u
         if ready is None or ready > swarm.step_start(first):
             statuses = swarm.stop()
             up = sum(swarm.last_event(i, "start") is not None for i in swarm.procs)
-            lead = "a leader" if swarm.leaders() else "no leader"
+            lead = "a leader" if swarm.elections() else "no leader"
             print(
                 f"{n:>3}  not measured: {delay + args.warmup:.0f} s after launch, {up} of {n} processes up, "
                 f"{lead}"
@@ -75,8 +75,8 @@ def run_one(n: int, args: argparse.Namespace, out: Path, seal_us: float, check_u
         statuses = swarm.stop()
     w = window_stats(swarm, first, last)
     use = usage_stats(swarm)
-    leaders = swarm.leaders()
-    lead = leaders[-1] if leaders else None
+    elections = swarm.elections()
+    lead = elections[-1][1] if elections else None  # at the end
     worst = w.worst_second(round(1 / step_s))
     followers = [u.cpu_share for i, u in use.items() if i != lead]
     lu = use.get(lead) if lead is not None else None
@@ -96,14 +96,16 @@ def run_one(n: int, args: argparse.Namespace, out: Path, seal_us: float, check_u
     if lu is not None:
         crypto = (lu.datagrams_sent * seal_us + lu.datagrams_received * check_us) / 1e6 / lu.wall_s
         print(
-            f"     leader {lead}: {lu.datagrams_sent / lu.wall_s:.0f} datagrams/s sent, "
+            f"     leader {lead} (at the end): {lu.datagrams_sent / lu.wall_s:.0f} datagrams/s sent, "
             f"{lu.datagrams_received / lu.wall_s:.0f} received; signing and checking them about "
             f"{crypto:.0%} of a core; its CPU in all {lu.cpu_share:.0%}"
         )
     notes = []
     notes.append(f"all processes up and a leader at step 0 {ready - swarm.step_start(0):+.1f} s")
-    if len(leaders) > 1:
-        notes.append(f"leaders over the run: {', '.join(map(str, leaders))}")
+    later = [(t - swarm.step_start(0), i) for t, i, _ in elections[1:]]
+    if later:
+        won = ", ".join(f"{i} at {dt:+.1f} s" for dt, i in later)
+        notes.append(f"{len(later)} more elections (the winner, and when after step 0: {won})")
     if not w.identical:
         notes.append("RECORDS DIFFER between drones")
     if any(s != 0 for s in statuses.values()):
@@ -168,8 +170,8 @@ def main() -> None:
     print(
         "columns: committed steps/s over the window; the fewest in any one second; steps skipped; "
         "commit latency (step start to the leader's apply) p50, p99; to the last drone's apply, p99; "
-        "CPU s per s of the leader, the followers' mean and most; bytes sent per step by the swarm, "
-        "by the leader; datagrams the leader sent + received per step"
+        "CPU s per s of the leader at the end, the other drones' mean and most; "
+        "bytes sent per step by the swarm, by the leader; datagrams the leader sent + received per step"
     )
     for line in missed:
         print("MISSED: " + line)

@@ -105,16 +105,16 @@ class LoopbackSwarm:
             return None
         return max(max(e["t"] for e in starts), min(leaders))
 
-    def leaders(self) -> list[int]:
-        """Every drone that was leader at some time, in order of its first election."""
-        firsts = sorted(
-            (e["t"], i) for i in self.procs for e in events(self.nodes_dir, i) if e.get("role") == "leader"
-        )
-        seen: list[int] = []
-        for _, i in firsts:
-            if i not in seen:
-                seen.append(i)
-        return seen
+    def elections(self) -> list[tuple[float, int, int]]:
+        """Every election won, in time order: (unix time, drone, term). The last one's drone is
+        the leader at the end."""
+        won = {
+            (e["term"], i): e["t"]
+            for i in self.procs
+            for e in events(self.nodes_dir, i)
+            if e.get("role") == "leader"
+        }
+        return sorted((t, i, term) for (term, i), t in won.items())
 
 
 def percentile(xs: list[float], q: float) -> float:

@@ -38,6 +38,8 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_mission.py
 	$(BIN)/python benchmarks/bench_crypto.py
 	$(BIN)/python benchmarks/bench_wire.py
+	$(BIN)/python benchmarks/bench_net.py
+	$(BIN)/python benchmarks/bench_hostile.py
 
 clean:
 	rm -rf $(VENV) results

@@ -48,6 +48,8 @@ def test_two_transports_on_loopback_exchange_a_datagram_the_verifier_accepts():
             b.send(source, b"reply")
             assert (await inbox_a.next())[0] == b"reply"
             assert (a.sent, b.received) == (1, 1)
+            assert a.bytes_sent == b.bytes_received == len(data)
+            assert (a.bytes_received, b.bytes_sent) == (5, 5)
         finally:
             a.close()
             b.close()
@@ -122,6 +124,7 @@ def test_an_oversized_datagram_is_not_sent():
             t.send(t.local_address, b"small")
             assert (await inbox.next())[0] == b"small"
             assert (t.sent, t.dropped) == (1, 1)
+            assert t.bytes_sent == t.bytes_received == len(b"small")  # a datagram not sent counts no bytes
         finally:
             t.close()
 

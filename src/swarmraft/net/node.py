@@ -300,6 +300,9 @@ class DroneHost:
             driver.add_done_callback(lambda t: t.cancelled() or t.exception() is None or self.stop("error"))
             self._schedule_ticks(loop)
             self._schedule_steps(loop)
+            self._usage_at_step_0: dict[str, Any] | None = None  # for the stop event
+            at = self._loop_time_of(self.swarm.start_unix_s)
+            self._timers.append(loop.call_at(at, lambda: setattr(self, "_usage_at_step_0", self._usage())))
             self._wake.set()
             await self._stopped
             self._stopping = True
@@ -338,10 +341,26 @@ class DroneHost:
             verifier={k: v for k, v in self.verifier.counters.items() if v}
             if hasattr(self, "verifier")
             else {},
-            transport={"sent": self.transport.sent, "received": self.transport.received},
             reports_rejected=self.drone.rejected,
             counters=dict(self.counters),
+            **self._usage(),
+            at_step_0=getattr(self, "_usage_at_step_0", None),
         )
+
+    def _usage(self) -> dict[str, Any]:
+        """What this process has used so far: CPU seconds (all threads, since it started) and
+        the transport's datagrams and bytes, at a wall-clock time."""
+        t = self.transport
+        return {
+            "unix_s": round(time.time(), 4),
+            "cpu_s": round(time.process_time(), 4),
+            "transport": {
+                "sent": t.sent,
+                "received": t.received,
+                "bytes_sent": t.bytes_sent,
+                "bytes_received": t.bytes_received,
+            },
+        }
 
     def stop(self, reason: str = "stop") -> None:
         """Stop at the next turn of the loop (safe from a signal handler)."""

@@ -55,7 +55,8 @@ class UDPTransport:
     """One bound UDP socket. Build it with ``await UDPTransport.bind(host, port, on_receive)``
     (port 0: any free port, see ``local_address``); ``on_receive(data, addr)`` runs on the
     event loop for each datagram, and an exception in it is logged, not raised into the loop.
-    ``sent``, ``received`` and ``dropped`` count datagrams."""
+    ``sent``, ``received`` and ``dropped`` count datagrams; ``bytes_sent`` and
+    ``bytes_received`` the bytes of the datagrams in ``sent`` and ``received``."""
 
     def __init__(self, on_receive: Receive) -> None:
         self._on_receive = on_receive
@@ -64,6 +65,7 @@ class UDPTransport:
         self._numeric: set[str] = set()
         self.local_address: Address = ("", 0)
         self.sent = self.received = self.dropped = 0
+        self.bytes_sent = self.bytes_received = 0
 
     @classmethod
     async def bind(cls, host: str, port: int, on_receive: Receive) -> UDPTransport:
@@ -96,9 +98,11 @@ class UDPTransport:
             self._numeric.add(host)
         self._transport.sendto(data, addr)
         self.sent += 1
+        self.bytes_sent += len(data)
 
     def _received(self, data: bytes, addr: Address) -> None:
         self.received += 1
+        self.bytes_received += len(data)
         try:
             self._on_receive(data, addr)
         except Exception:  # a bug in the host must not stop the transport

@@ -11,10 +11,11 @@ driving order (`sim.runtime`, `sim.mission`):
 - every step k (at ``start_unix_s + k * step_s``): the drone's report from its sensor source
   (`net.sources`: by default the scenario's world, `sim.sensing.ScenarioWorld`, the same draws
   every process makes from the swarm file; or a recorded log, or MAVLink) to the leader it
-  knows (no report when the source has no reading); a resend at half the deadline if the
-  leader changed; the leader verifies at the deadline (or once every recent drone reported)
-  and proposes the record. The verification runs in a worker thread (the detector takes tens
-  of ms); the drone is not touched until it returns (reports wait, applying waits);
+  knows (no report when the source has no reading); the leader acknowledges it; a resend at
+  half the deadline if no acknowledgement came or the leader changed; the leader verifies at
+  the deadline (or once every recent drone reported) and proposes the record. The
+  verification runs in a worker thread (the detector takes tens of ms); the drone is not
+  touched until it returns (reports wait, committed entries queue), while Raft goes on;
 - every applied step is one JSON line (flushed) in ``drone-<id>.steps.jsonl``; starts, role
   changes and the final counters go to ``drone-<id>.events.jsonl``.
 
@@ -33,7 +34,7 @@ import random
 import signal
 import time
 import tomllib
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -198,6 +199,7 @@ class DroneHost:
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
         self._heard: dict[int, float] = {}  # peer -> monotonic time of its last accepted datagram
         self._acked: set[int] = set()  # steps whose report the leader acknowledged
+        self._to_apply: deque[Entry] = deque()  # committed, waiting for the drone to be free
         self._reply_limit = ReplyLimit()
         self._up_since = time.monotonic()
 
@@ -311,6 +313,8 @@ class DroneHost:
                 t.cancel()
             self._wake.set()
             await driver  # the write in flight, and what it releases, completes
+            if self._verifying is not None:
+                await asyncio.wait([self._verifying])  # its callback applies what waited
         finally:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 loop.remove_signal_handler(sig)
@@ -400,14 +404,22 @@ class DroneHost:
                         self._time("save", t0)
                     for m in rd.messages:
                         self._send_raft(m)
-                    while rd.committed and self._verifying is not None:
-                        await asyncio.wait([self._verifying])  # the drone is busy verifying
-                    for e in rd.committed:
-                        self._apply(e)
+                    # Committed entries go to the drone in log order, but not while it is
+                    # verifying in its thread: they wait in a queue, and Raft goes on (a
+                    # leader that waited here would send no heartbeats for as long as a
+                    # verification takes, up to a second on a loaded machine, and lose its
+                    # followers to an election).
+                    self._to_apply.extend(rd.committed)
+                    self._apply_queued()
                     node.advance(rd)
                 self._note_role()
             if self._stopping:
                 return
+
+    def _apply_queued(self) -> None:
+        """Apply the committed entries waiting in the queue, unless the drone is verifying."""
+        while self._to_apply and self._verifying is None:
+            self._apply(self._to_apply.popleft())
 
     def _note_role(self) -> None:
         now = (str(self.node.role), self.node.term)
@@ -644,6 +656,7 @@ class DroneHost:
     def _decided(self, fut: asyncio.Future, t0: float) -> None:
         self._verifying = None
         self._time("verify", t0)
+        self._apply_queued()  # what committed meanwhile, before any new verification
         try:
             rec = fut.result()
         except Exception:

@@ -115,3 +115,24 @@ def test_launch_through_the_fault_relay_with_a_crash_a_pause_and_a_partition(tmp
         assert others[k]["applied_unix_s"] < step0 + 25 <= applied1[k]["applied_unix_s"]
     with (out / "records.csv").open(newline="") as f:
         assert all(r["identical"] == "True" for r in csv.DictReader(f))
+
+
+def test_launch_refuses_a_bad_relay_choice_or_replay_log_in_one_line_naming_the_option(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,drone\n")
+    for args, start in (
+        (["--relay", "maybe"], "error: --relay: 'maybe' is not one of 'auto', 'on', 'off'."),
+        (
+            ["--replay", str(tmp_path / "nope.csv")],
+            f"error: --replay: {tmp_path / 'nope.csv'}: cannot read it",
+        ),
+        (["--replay", str(bad)], f"error: --replay: {bad}:1: header: "),
+    ):
+        out = tmp_path / "out"
+        cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", "demo", "--out", str(out), *args]
+        done = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"}
+        )
+        assert done.returncode == 2, done.stderr
+        assert done.stderr.startswith(start) and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert not out.exists()  # nothing written, nothing started

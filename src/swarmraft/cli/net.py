@@ -161,9 +161,12 @@ def launch(
         )
     n = sc.drones
     if replay is not None:
-        from swarmraft.net.sources.replay import read_sensor_log
+        from swarmraft.net.sources.replay import SensorLogError, read_sensor_log
 
-        read_sensor_log(replay, n)  # a bad log is one line (file:line: field: problem) before anything starts
+        try:  # a bad log is one line (file:line: field: problem) before anything starts
+            read_sensor_log(replay, n)
+        except SensorLogError as exc:
+            raise click.BadParameter(str(exc), param_hint="--replay") from None
     run = LocalSwarm(sc, find_scenario(scenario), out, seed, start_delay, relay, replay, say=console.print)
     run.prepare()
     console.print(f"wrote {out / 'keys'} and {run.swarm_path}", soft_wrap=True)

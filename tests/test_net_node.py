@@ -84,6 +84,11 @@ class Swarm:
             time.sleep(0.05)
         pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
 
+    def steps_go_on(self, drones, more, timeout_s, what):
+        """Wait until every one of ``drones`` committed ``more`` steps past the furthest now."""
+        now = max(self.last_committed(i) for i in drones)
+        self.wait(lambda: min(self.last_committed(i) for i in drones) >= now + more, timeout_s, what)
+
     def stop_all(self, timeout_s=15.0):
         """SIGTERM every process; their exit statuses."""
         for p in self.procs.values():
@@ -197,12 +202,7 @@ def test_hostile_datagrams_are_dropped_and_counted_while_drones_keep_stepping(tm
                 sock.sendto(b"SR" + bytes(200), addr)  # our magic, nonsense after it
         finally:
             sock.close()
-        at_attack = max(swarm.last_committed(i) for i in (1, 2, 3))
-        swarm.wait(
-            lambda: min(swarm.last_committed(i) for i in (1, 2, 3)) >= at_attack + 10,
-            10,
-            "steps after the attack",
-        )
+        swarm.steps_go_on((1, 2, 3), 10, 10, "steps after the attack")
         statuses = swarm.stop_all()
     assert statuses == {1: 0, 2: 0, 3: 0}
     assert_identical_records(swarm, (1, 2, 3))

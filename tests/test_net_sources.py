@@ -323,7 +323,8 @@ def test_launch_refuses_a_bad_replay_log_with_one_line_before_starting_anything(
     assert done.returncode == 2
     assert (
         done.stderr.strip()
-        == f"error: {bad}:1: header: 2 range columns (range_1 .. range_2); the scenario has 9 drones"
+        == f"error: --replay: {bad}:1: header: 2 range columns (range_1 .. range_2); the scenario has"
+        " 9 drones (see `python -m swarmraft launch --help`)"
     )
     assert not (tmp_path / "out" / "swarm.toml").exists()
 

@@ -110,9 +110,11 @@ def test_launch_through_the_fault_relay_with_a_crash_a_pause_and_a_partition(tmp
     applied1 = {r["step"]: r for r in read_jsonl(out / "nodes" / "drone-1.steps.jsonl") if r["committed"]}
     others = {r["step"]: r for r in read_jsonl(out / "nodes" / "drone-2.steps.jsonl") if r["committed"]}
     cut_steps = [k for k in range(222, 245) if k in others]
-    assert len(cut_steps) >= 10 and all(k in applied1 for k in cut_steps)
-    for k in cut_steps:
-        assert others[k]["applied_unix_s"] < step0 + 25 <= applied1[k]["applied_unix_s"]
+    assert all(k in applied1 for k in cut_steps)
+    # the majority went on while drone 1 was cut off (an election may cost it a few steps) ...
+    assert sum(others[k]["applied_unix_s"] < step0 + 25 for k in cut_steps) >= 10
+    # ... and drone 1 learnt of none of those records before the heal
+    assert all(applied1[k]["applied_unix_s"] >= step0 + 25 for k in cut_steps)
     with (out / "records.csv").open(newline="") as f:
         assert all(r["identical"] == "True" for r in csv.DictReader(f))
 

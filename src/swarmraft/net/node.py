@@ -323,8 +323,8 @@ class DroneHost:
             self._disk.shutdown(wait=True)
             self._cpu.shutdown(wait=True)
             self._finish_event()
-            if (k := getattr(self, "_begun", None)) is not None:
-                self._count_sent(k + 1)  # the last step's datagrams
+            if (k := getattr(self, "_begun", None)) is not None and k < self.sc.steps:
+                self._count_sent(k + 1)  # stopped mid-run: the datagrams of the step in progress
             self._steps.close()
             self._events.close()
             self._sent_file.close()
@@ -553,6 +553,10 @@ class DroneHost:
             self._timers.append(loop.call_at(at + dl / 2, self._retry, k))
             self._timers.append(loop.call_at(at + dl, self._deadline, k))
         end = self._loop_time_of(self.swarm.start_unix_s + sc.steps * dt) + dl + END_GRACE_S
+        # the last step's datagrams are counted when a step after it would begin, not at the
+        # stop (which comes END_GRACE_S later, and would count that time to the last step)
+        after = self._loop_time_of(self.swarm.start_unix_s + (sc.steps + 1) * dt)
+        self._timers.append(loop.call_at(after, self._count_sent, sc.steps + 1))
         self._timers.append(loop.call_at(end, self.stop, "end of scenario"))
 
     def _report(self, k: int) -> Report | None:

@@ -1,0 +1,139 @@
+"""`net.localswarm.LocalSwarm`'s faults, without processes: each scenario fault becomes the
+right action on the right drone's process or on the relay, in time order, and crash-leader
+kills the drone whose event file says it leads, of the highest term."""
+
+import json
+
+from swarmraft.net.localswarm import LocalSwarm, needs_relay
+from swarmraft.sim.scenario import Scenario
+
+
+class FakeProcess:
+    def __init__(self, log):
+        self.log, self.alive, self.paused = log, True, False
+
+    def kill(self):
+        self.log.append("kill")
+        self.alive = False
+
+    def pause(self):  # as NodeProcess: a process that is not running is not paused
+        if self.alive and not self.paused:
+            self.log.append("pause")
+            self.paused = True
+
+    def resume(self):
+        if self.alive and self.paused:
+            self.log.append("resume")
+        self.paused = False
+
+    def start(self):
+        self.log.append("start")
+        self.alive = True
+
+
+class FakeRelay:
+    """Stands for RelayThread: call(method, *args) records what was asked of the relay."""
+
+    def __init__(self):
+        self.calls = []
+        self.relay = self
+
+    def call(self, method, *args, **kwargs):
+        self.calls.append((method.__name__, args, kwargs))
+
+    def partition(self, groups):
+        pass
+
+    def heal(self):
+        pass
+
+    def set_all(self, **changes):
+        pass
+
+
+def swarm_with(tmp_path, faults, network=None):
+    sc = Scenario(drones=5, duration_s=30, fault=faults, network=network or {})
+    run = LocalSwarm(sc, tmp_path / "s.toml", tmp_path / "out", say=lambda s: None)
+    run.nodes_dir.mkdir(parents=True)
+    run.logs = {i: [] for i in range(1, 6)}
+    run.procs = {i: FakeProcess(run.logs[i]) for i in range(1, 6)}
+    run.relay = FakeRelay() if run.link is not None else None
+    return run
+
+
+def role_events(run, drone, *roles):
+    with (run.nodes_dir / f"drone-{drone}.events.jsonl").open("a") as f:
+        for role, term in roles:
+            f.write(json.dumps({"t": 0, "event": "role", "role": role, "term": term}) + "\n")
+
+
+def test_each_fault_acts_on_its_process_or_the_relay_in_time_order(tmp_path):
+    faults = [
+        {"kind": "heal", "at_s": 25},
+        {"kind": "crash-leader", "at_s": 10},
+        {"kind": "pause", "at_s": 12, "for_s": 2, "drone": 2},
+        {"kind": "crash", "at_s": 5, "drone": 4},
+        {"kind": "restart", "at_s": 20, "drone": 4},
+        {"kind": "partition", "at_s": 22, "groups": [[1], [2, 3, 5]]},
+        {"kind": "loss", "at_s": 23, "value": 0.3},
+        {"kind": "pause", "at_s": 26, "for_s": 1},
+    ]
+    run = swarm_with(tmp_path, faults)
+    assert needs_relay(run.sc) and run.relay is not None
+    role_events(run, 1, ("leader", 1), ("follower", 2))  # led term 1, then lost it
+    role_events(run, 3, ("follower", 1), ("leader", 2))  # leads term 2
+    role_events(run, 5, ("leader", 1))  # a stale leader of term 1
+    acts = run.actions()
+    assert [(a.at_s, a.kind) for a in acts] == [
+        (5, "crash"),
+        (10, "crash-leader"),
+        (12, "pause"),
+        (14, "resume"),
+        (20, "restart"),
+        (22, "partition"),
+        (23, "loss"),
+        (25, "heal"),
+        (26, "pause"),
+        (27, "resume"),
+    ]
+    said = [a.run() for a in acts]
+    assert said[:5] == [
+        "drone 4 killed (SIGKILL)",
+        "leader 3 (term 2) killed (SIGKILL)",
+        "drone 2 paused (SIGSTOP) for 2 s",
+        "drone 2 resumed (SIGCONT)",
+        "drone 4 restarted on its SQLite file",
+    ]
+    assert said[8:] == ["every drone paused (SIGSTOP) for 1 s", "every drone resumed (SIGCONT)"]
+    assert run.logs[4] == ["kill", "start", "pause", "resume"]
+    assert run.logs[3] == ["kill"] and run.logs[1] == run.logs[5] == ["pause", "resume"]
+    assert run.logs[2] == ["pause", "resume", "pause", "resume"]
+    assert run.relay.calls == [
+        ("partition", ([[1], [2, 3, 5]],), {}),
+        ("set_all", (), {"loss": 0.3}),
+        ("heal", (), {}),
+    ]
+    assert set(run.kills) == {4, 3}
+
+
+def test_without_the_relay_network_faults_are_said_not_applied(tmp_path):
+    faults = [{"kind": "partition", "at_s": 2, "groups": [[1, 2], [3, 4, 5]]}]
+    run = swarm_with(tmp_path, faults)
+    run.relay = None  # as with --relay off
+    assert run.actions()[0].run() == "partition: not applied (no fault relay: --relay off)"
+
+
+def test_crash_leader_with_no_leader_known_kills_nothing(tmp_path):
+    run = swarm_with(tmp_path, [{"kind": "crash-leader", "at_s": 3}])
+    role_events(run, 2, ("candidate", 4))
+    assert run.actions()[0].run() == "crash-leader: no leader known, nothing killed"
+    assert not any(run.logs.values())
+
+
+def test_the_relay_is_needed_only_for_what_loopback_cannot_do():
+    assert not needs_relay(Scenario(drones=5, duration_s=10, network={"delay_ms": (5, 9)}))
+    assert needs_relay(Scenario(drones=5, duration_s=10, network={"reorder": 0.1}))
+    assert needs_relay(Scenario(drones=5, duration_s=10, fault=[{"kind": "loss", "at_s": 1, "value": 0.1}]))
+    assert not needs_relay(
+        Scenario(drones=5, duration_s=10, fault=[{"kind": "pause", "at_s": 1, "for_s": 1}])
+    )

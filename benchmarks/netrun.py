@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from swarmraft.net.launch import NodeProcess, default_start_delay_s, events, prepare_swarm, read_jsonl
+from swarmraft.net.swarmfile import drone_file
 
 SCENARIO = """name = "bench-net"
 seed = {seed}
@@ -61,7 +62,7 @@ class LoopbackSwarm:
         self.n, self.duration_s = n, duration_s
         self.step_s = 0.1  # the scenario's dt_s (its default: 10 Hz)
         ids = running or range(1, n + 1)
-        self.procs = {i: NodeProcess(i, self.path, self.nodes_dir / f"drone-{i}.log") for i in ids}
+        self.procs = {i: NodeProcess(i, self.path, drone_file(self.nodes_dir, i, "log")) for i in ids}
 
     def step_start(self, k: int) -> float:
         """Unix time at which step k starts."""
@@ -91,7 +92,7 @@ class LoopbackSwarm:
         return {i: p.wait(timeout_s) for i, p in self.procs.items()}
 
     def steps(self, i: int) -> dict[int, dict[str, Any]]:
-        return {r["step"]: r for r in read_jsonl(self.nodes_dir / f"drone-{i}.steps.jsonl")}
+        return {r["step"]: r for r in read_jsonl(drone_file(self.nodes_dir, i, "steps.jsonl"))}
 
     def last_event(self, i: int, kind: str) -> dict[str, Any] | None:
         found = [e for e in events(self.nodes_dir, i) if e["event"] == kind]

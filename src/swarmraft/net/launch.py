@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from swarmraft.net.keys import write_keys
-from swarmraft.net.swarmfile import SwarmFile, swarm_file_text
+from swarmraft.net.swarmfile import SwarmFile, drone_file, swarm_file_text
 
 NODES_DIR = "nodes"
 
@@ -174,7 +174,7 @@ def read_jsonl(path: Path) -> list[dict[str, Any]]:
 
 
 def events(nodes_dir: Path, drone: int) -> list[dict[str, Any]]:
-    return read_jsonl(Path(nodes_dir) / f"drone-{drone}.events.jsonl")
+    return read_jsonl(drone_file(nodes_dir, drone, "events.jsonl"))
 
 
 def current_leader(nodes_dir: Path, alive: list[int]) -> tuple[int, int] | None:
@@ -221,7 +221,7 @@ def gather_steps(nodes_dir: Path, n: int, steps: int, dt_s: float, out_csv: Path
     record for it) or skipped, the record's status, term, flags (drone ids) and hash, how many
     nodes' files reach the step, and whether they all agree (the same record, or all skipped)."""
     per_node = {
-        i: {r["step"]: r for r in read_jsonl(Path(nodes_dir) / f"drone-{i}.steps.jsonl")}
+        i: {r["step"]: r for r in read_jsonl(drone_file(nodes_dir, i, "steps.jsonl"))}
         for i in range(1, n + 1)
     }
     g = Gathered(per_node=per_node)

@@ -23,6 +23,7 @@ from swarmraft.net.launch import (
     prepare_swarm,
 )
 from swarmraft.net.relay import RelayThread
+from swarmraft.net.swarmfile import drone_file
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.scenario import Scenario
 
@@ -92,7 +93,7 @@ class LocalSwarm:
             self.out, self.scenario_file, n, self.start_unix_s, self.seed, ports[:n], advertise, self.replay
         )
         self.procs = {
-            i: NodeProcess(i, self.swarm_path, self.nodes_dir / f"drone-{i}.log") for i in range(1, n + 1)
+            i: NodeProcess(i, self.swarm_path, drone_file(self.nodes_dir, i, "log")) for i in range(1, n + 1)
         }
 
     def network_line(self) -> str:

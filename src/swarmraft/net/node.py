@@ -50,7 +50,7 @@ from swarmraft.net.auth import Accepted, Signer, Verifier, public_key
 from swarmraft.net.keys import KeyFileError, load_private_key, load_public_keys
 from swarmraft.net.sources import SourceError, open_source
 from swarmraft.net.status import ReplyLimit, encode_reply
-from swarmraft.net.swarmfile import SwarmFile, load_swarm
+from swarmraft.net.swarmfile import SwarmFile, drone_file, load_swarm
 from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.raft import Entry, EntryKind, Message, NotLeader, RaftConfig, RaftNode, Role, SQLiteStorage
@@ -206,19 +206,19 @@ class DroneHost:
     # -- files ------------------------------------------------------------------------------
     @property
     def storage_path(self) -> Path:
-        return self.out / f"drone-{self.id}.sqlite"
+        return drone_file(self.out, self.id, "sqlite")
 
     @property
     def steps_path(self) -> Path:
-        return self.out / f"drone-{self.id}.steps.jsonl"
+        return drone_file(self.out, self.id, "steps.jsonl")
 
     @property
     def events_path(self) -> Path:
-        return self.out / f"drone-{self.id}.events.jsonl"
+        return drone_file(self.out, self.id, "events.jsonl")
 
     @property
     def sent_path(self) -> Path:
-        return self.out / f"drone-{self.id}.sent.csv"
+        return drone_file(self.out, self.id, "sent.csv")
 
     def _read_written_steps(self) -> None:
         """Steps already in the step file (from before a restart); a torn last line is cut."""

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from swarmraft.net.launch import read_jsonl
+from swarmraft.net.swarmfile import drone_file
 from swarmraft.sim.mission import MissionLog, ins_aligned_in_outages, world_log
 from swarmraft.sim.sensing import ScenarioWorld
 
@@ -78,14 +79,14 @@ def launch_log(
     first_apply = np.full(S, np.inf)
     for d in range(1, n + 1):
         i = d - 1
-        evs = read_jsonl(nodes_dir / f"drone-{d}.events.jsonl")
+        evs = read_jsonl(drone_file(nodes_dir, d, "events.jsonl"))
         for e in evs:
             if e["event"] == "role" and e.get("role") == "leader":
                 leader_of_term.setdefault(int(e["term"]), d)
         for a, b in _up_intervals(evs, (kills or {}).get(d, [])):
             log.alive[:, i] |= (step_start >= a) & (step_start < b)
         recs = []
-        for row in read_jsonl(nodes_dir / f"drone-{d}.steps.jsonl"):
+        for row in read_jsonl(drone_file(nodes_dir, d, "steps.jsonl")):
             k = int(row["step"])
             if not 0 <= k < S:
                 continue
@@ -107,7 +108,7 @@ def launch_log(
             for m in row["missing"]:
                 log.missing[k, m - 1] = True
         log.node_records[d] = sorted(recs)
-        sent = nodes_dir / f"drone-{d}.sent.csv"
+        sent = drone_file(nodes_dir, d, "sent.csv")
         if sent.exists():
             with sent.open(newline="") as f:
                 for r in csv.DictReader(f):

@@ -21,7 +21,15 @@ import re
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from swarmraft.estimation.registry import one_line
 from swarmraft.net.tomlfile import read_toml
@@ -33,6 +41,27 @@ Address = tuple[str, int]
 
 class SwarmFileError(ValueError):
     """A swarm file that is missing, not TOML or invalid; one line naming the file and field."""
+
+
+def drone_file(folder: str | Path, drone: int, kind: str) -> Path:
+    """A drone's file in the swarm's ``out`` folder: ``drone-<id>.<kind>``, kind one of
+    ``sqlite``, ``steps.jsonl``, ``events.jsonl``, ``sent.csv``, ``log`` (docs/net.md)."""
+    return Path(folder) / f"drone-{drone}.{kind}"
+
+
+def _bind_address(v: str) -> str:
+    parse_address(v, bind=True)
+    return v
+
+
+def _peer_address(v: str) -> str:
+    parse_address(v, bind=False)
+    return v
+
+
+#: host:port text, checked as an address to bind (the any-address allowed) or to send to.
+BindAddress = Annotated[str, AfterValidator(_bind_address)]
+PeerAddress = Annotated[str, AfterValidator(_peer_address)]
 
 
 def parse_address(text: str, *, bind: bool) -> Address:
@@ -70,14 +99,8 @@ class ReplaySourceConfig(_Strict):
 class MavlinkSourceConfig(_Strict):
     kind: Literal["mavlink"] = Field(description="a live fix over MAVLink, ranges over UDP lines")
     connect: str = Field(min_length=1, description="pymavlink connection string, e.g. udpin:0.0.0.0:14550")
-    ranges: str = Field(description="host:port the range lines arrive at (UDP)")
+    ranges: BindAddress = Field(description="host:port the range lines arrive at (UDP)")
     max_age_s: float = Field(1.0, gt=0, description="a fix or range older than this is not used, s")
-
-    @field_validator("ranges")
-    @classmethod
-    def _ranges(cls, v: str) -> str:
-        parse_address(v, bind=True)
-        return v
 
     @property
     def ranges_address(self) -> Address:
@@ -96,22 +119,10 @@ class GeodeticOrigin(_Strict):
 
 
 class DroneEntry(_Strict):
-    bind: str = Field(description="host:port its UDP socket binds (0.0.0.0:port: every interface)")
-    advertise: str = Field(description="host:port its peers send to")
+    bind: BindAddress = Field(description="host:port its UDP socket binds (0.0.0.0:port: every interface)")
+    advertise: PeerAddress = Field(description="host:port its peers send to")
     key: Path = Field(description="its private key file (drone-<id>.key, mode 0600)")
     source: SourceConfig = Field(default_factory=ScenarioSourceConfig, description="its sensor readings")
-
-    @field_validator("bind")
-    @classmethod
-    def _bind(cls, v: str) -> str:
-        parse_address(v, bind=True)
-        return v
-
-    @field_validator("advertise")
-    @classmethod
-    def _advertise(cls, v: str) -> str:
-        parse_address(v, bind=False)
-        return v
 
     @property
     def bind_address(self) -> Address:

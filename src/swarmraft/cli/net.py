@@ -185,7 +185,7 @@ def launch(
             "start_delay_s": round(run.start_delay_s, 2),
             "up_after_step0_s": {str(d): t for d, t in up.items()},
             "fault_relay": run.relay is not None,
-            "relay_counters": getattr(run, "relay_counters", {}),
+            "relay_counters": run.relay_counters,
             "steps_with_records_differing": [r["step"] for r in g.rows if not r["identical"]],
             "interrupted": run.interrupted,
         }

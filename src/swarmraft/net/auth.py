@@ -187,8 +187,9 @@ class Verifier:
         self.log = log or RateLimitedLog(_logger)
         self.counters: Counter[str] = Counter(dict.fromkeys((*self.REASONS, "accepted"), 0))
 
-    def check(self, data: bytes, origin: str = "") -> Accepted | Dropped:
-        """What ``data`` carries, or why it was dropped; ``origin`` (an address) is for the log."""
+    def check(self, data: bytes, origin: str | tuple = "") -> Accepted | Dropped:
+        """What ``data`` carries, or why it was dropped; ``origin`` (an address: text, or a
+        (host, port) tuple, formatted only for a drop's log line) is for the log."""
         try:
             result = self._check(data)
         except Exception as exc:  # one datagram must never stop the node
@@ -198,6 +199,8 @@ class Verifier:
             return result
         self.counters[result.reason] += 1
         who = f" from drone {result.sender}" if result.sender is not None else ""
+        if isinstance(origin, tuple):
+            origin = ":".join(map(str, origin[:2]))
         where = f" ({origin})" if origin else ""
         line = f"dropped datagram{who}{where}: {result.reason}: {result.detail}"
         if result.reason == "internal_error":

@@ -71,9 +71,9 @@ class LocalSwarm:
         self.n = self.sc.drones
         self.nodes_dir = self.out / NODES_DIR
         self.relay: RelayThread | None = None
+        self.relay_counters: dict[str, int] = {}  # the relay's, when it stops
         if self.relay_mode == "on" or (self.relay_mode == "auto" and needs_relay(self.sc)):
-            net = self.sc.network
-            self.link = LinkModel(tuple(net.delay_ms), net.loss, net.duplicate, net.reorder)
+            self.link = LinkModel.of(self.sc.network)
         else:
             self.link = None
 

@@ -142,6 +142,10 @@ def _levels(x: np.ndarray | None) -> list | None:
     return ["inf" if np.isposinf(v) else None if not np.isfinite(v) else round(float(v), 4) for v in x]
 
 
+#: The stop event's counter of what was sent, by the type sent.
+_SENT_COUNTER = {Message: "sent_raft", Report: "sent_reports", wire.ReportAck: "sent_acks"}
+
+
 class DroneHost:
     """Drone ``drone_id`` of ``swarm``; ``await run()`` until the scenario ends or a stop."""
 
@@ -197,6 +201,7 @@ class DroneHost:
         self._backlog: list[Report] = []  # reports that arrived meanwhile
         self._decide_later: list[int] = []
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
+        self._reports: dict[int, Report | None] = {}  # step -> its report, kept 2 steps for resends
         self._heard: dict[int, float] = {}  # peer -> monotonic time of its last accepted datagram
         self._acked: set[int] = set()  # steps whose report the leader acknowledged
         self._to_apply: deque[Entry] = deque()  # committed, waiting for the drone to be free
@@ -433,8 +438,7 @@ class DroneHost:
         if addr is None:
             self.counters["no_address"] += 1
             return
-        sort = "raft" if isinstance(obj, Message) else "reports" if isinstance(obj, Report) else "acks"
-        self.counters[f"sent_{sort}"] += 1
+        self.counters[_SENT_COUNTER[type(obj)]] += 1
         try:
             data = self.signer.seal(obj)
         except wire.WireError as exc:
@@ -450,7 +454,7 @@ class DroneHost:
         if (nonce := wire.status_request_nonce(data)) is not None:
             self._answer_status(nonce, addr)
             return
-        got = self.verifier.check(data, f"{addr[0]}:{addr[1]}")
+        got = self.verifier.check(data, addr)
         if not isinstance(got, Accepted):
             return
         self._heard[got.sender] = time.monotonic()
@@ -597,7 +601,6 @@ class DroneHost:
         if self._late(k, self.sc.protocol.deadline_ms / 1000):
             self.counters["steps_missed_late"] += 1  # no reading is taken for a step that is over
             return
-        self._reports = getattr(self, "_reports", {})
         self._reports[k] = self._report(k)
         if self._reports[k] is not None:
             self._reported[k] = _jsonable(self._reports[k].position)[0]
@@ -614,7 +617,7 @@ class DroneHost:
         """At half the deadline, resend step k's report if the leader did not acknowledge it,
         or if the leader changed (or became known) since it was sent (as the simulator's
         missions do)."""
-        report = getattr(self, "_reports", {}).get(k)
+        report = self._reports.get(k)
         if self._late(k, self.sc.protocol.deadline_ms / 1000):
             return
         lead = self.node.lead

@@ -88,7 +88,7 @@ def world_log(w: ScenarioWorld) -> MissionLog:
     )
     for k in range(S):
         truth = traj.positions[k]
-        log.gnss[k] = np.where(w.has_fix[k][:, None], w.fix[k], np.nan)
+        log.gnss[k] = w.gnss_output(k)
         log.honest_gnss[k] = truth + w.gnss_err[k]
         log.spoofed[k], log.outage[k] = w.spoofed[k], ~w.has_fix[k]
         log.ins_alone[k] = truth + w.drift.error(np.full(n, traj.t[k]))
@@ -121,9 +121,7 @@ class Mission:
             w.timeline,
             w.uwb,
         )
-        link = LinkModel(
-            tuple(sc.network.delay_ms), sc.network.loss, sc.network.duplicate, sc.network.reorder
-        )
+        link = LinkModel.of(sc.network)
         self.cluster = Cluster(
             n,
             seed=sc.seed,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,11 @@ class LinkModel:
                 raise ValueError(f"LinkModel: {name} must be in [0, 1]")
         if self.reorder_ms < 0:
             raise ValueError("LinkModel: reorder_ms must be >= 0")
+
+    @classmethod
+    def of(cls, config: Any) -> LinkModel:
+        """The link model of a scenario's ``[network]`` (`sim.scenario.NetworkConfig`)."""
+        return cls(tuple(config.delay_ms), config.loss, config.duplicate, config.reorder)
 
     def delays(self, rng: random.Random) -> list[float]:
         """Delivery delays of the copies that arrive (empty: lost)."""

@@ -5,7 +5,10 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean chromium
+
+# apt-get as root, through sudo otherwise.
+APT := $(if $(filter 0,$(shell id -u)),,sudo) apt-get
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -28,7 +31,13 @@ lint: $(VENV)/.installed-test
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
 
-test: lint
+# The browser tests (live viewer, HTML report) drive Debian's chromium: Playwright's own browser
+# download cannot work on a machine without internet. Installed once, when it is missing.
+chromium:
+	@command -v chromium >/dev/null 2>&1 || { echo "installing Debian's chromium for the browser tests"; \
+	  $(APT) install -y -q chromium >/dev/null || { $(APT) update -q >/dev/null && $(APT) install -y -q chromium >/dev/null; }; }
+
+test: lint chromium
 	$(BIN)/python -m pytest -q
 
 bench: $(VENV)/.installed

@@ -156,7 +156,6 @@ FIGURE_KINDS = ["scaling", "distribution", "recovery", "integrity", "all", "anim
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
     "--out",
-    type=click.Path(path_type=Path),
     help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png); for animation .gif, "
     "or .mp4 with ffmpeg on PATH (default RESULTS/figures/animation.gif)",
 )
@@ -203,11 +202,11 @@ def figure(kind, results, out, view, fps, every) -> None:
                 raise click.BadParameter("only for `swarmraft figure animation`", ctx, param_hint=name)
     if kind == "animation":
         if out is not None:
-            out = ImageFile(ANIMATION_SUFFIXES).convert(str(out), out_param, ctx)
+            out = ImageFile(ANIMATION_SUFFIXES).convert(out, out_param, ctx)
         draw_animation(results, out, fps or 10.0, every)
         return
     if out is not None:
-        out = ImageFile(IMAGE_SUFFIXES).convert(str(out), out_param, ctx)
+        out = ImageFile(IMAGE_SUFFIXES).convert(out, out_param, ctx)
     from swarmraft.experiments.config import ConfigError
     from swarmraft.experiments.results_folder import folder_kind
 

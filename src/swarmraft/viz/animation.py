@@ -123,7 +123,7 @@ def swarm_animation(
                     + (f"\n{beyond} point{'s' * (beyond > 1)} beyond the view" if beyond else ""),
                     fontsize=10,
                 )
-                map_legend(fig, [ax], ncol=3)
+                map_legend(fig, [ax], ncol=3, markerscale=0.6)
                 writer.grab_frame()
                 if progress is not None:
                     progress(1)

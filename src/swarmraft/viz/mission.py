@@ -263,7 +263,7 @@ def swarm_map(
         ax.scatter(
             tr[leader - 1, 0],
             tr[leader - 1, 1],
-            s=380,
+            s=300,
             marker="D",
             facecolors="none",
             edgecolors="black",
@@ -293,15 +293,24 @@ def swarm_map(
     _place_labels(ax, np.array(anchors), labels, pts)
 
 
-def map_legend(fig: plt.Figure, axes: Sequence[plt.Axes]) -> None:
-    """One legend under the maps for every kind of marker any of them drew, at most 5 a row."""
+def map_legend(fig: plt.Figure, axes: Sequence[plt.Axes], ncol: int = 5, markerscale: float = 1.0) -> None:
+    """One legend under the maps for every kind of marker any of them drew, at most ``ncol`` a
+    row, markers drawn ``markerscale`` times their size on the map."""
     handles, labels = [], []
     for ax in axes:
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), frameon=False, fontsize=8)
+    fig.legend(
+        handles,
+        labels,
+        loc="lower center",
+        ncol=min(len(labels), ncol),
+        frameon=False,
+        fontsize=8,
+        markerscale=markerscale,
+    )
 
 
 def swarm_maps(

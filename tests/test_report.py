@@ -8,6 +8,7 @@ import math
 import shutil
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 from PIL import Image
 
@@ -99,6 +100,15 @@ def test_mission_failures_come_first_and_none_is_left_out(mission_dir, tmp_path)
     assert page.by_id["check-counts"].startswith(f"{len(fails)} failed, {len(warns)} warnings")
     # fields the report has no section for are still shown
     assert "steps_with_records_differing" in page.keys["other-fields"]["launch"]
+
+
+def test_a_networked_runs_folder_is_reported_as_one(mission_dir, tmp_path):
+    folder = tmp_path / "launch"
+    shutil.copytree(mission_dir, folder, ignore=shutil.ignore_patterns("report.html"))
+    (folder / "records.csv").write_text("step,identical\n0,1\n")
+    page = report_of(folder)
+    assert page.keys["provenance"]["kind"] == "networked run (swarmraft launch)"
+    assert page.by_id.get("checks")  # the mission's checks, as for a simulated mission
 
 
 def data_images(page: Page) -> dict[str, bytes]:
@@ -256,6 +266,7 @@ def test_animation_gif_has_one_distinct_frame_per_every_steps(mission_dir, tmp_p
     steps = len(read_table(mission_dir / "steps.csv")["step"]) // 6
     want = math.ceil(steps / 4)
     assert f"wrote {target} ({want} frames, one per 4 of the {steps} steps" in r.output
+    assert not list(tmp_path.glob(".*part*"))  # the render's temporary file is gone
     im, frames = gif_frames(target)
     assert im.n_frames == want == 11
     assert im.size == (512, 512)
@@ -278,7 +289,7 @@ def test_animation_frames_show_the_steps_leader_and_flags(mission_dir, monkeypat
         seen.append((self.fig._suptitle.get_text(), ax.get_title(), labels))
 
     monkeypatch.setattr(animation.PillowWriter, "grab_frame", grab)
-    monkeypatch.setattr(animation.PillowWriter, "finish", lambda self: None)
+    monkeypatch.setattr(animation.PillowWriter, "finish", lambda self: open(self.outfile, "wb").close())
     m = read_mission(mission_dir)
     log = m.log
     va.swarm_animation(log, tmp_path / "unused.gif", every=3, title="short")
@@ -297,6 +308,26 @@ def test_animation_frames_show_the_steps_leader_and_flags(mission_dir, monkeypat
         else:
             assert axtitle.startswith("no record (skipped)")
         assert ("crashed (no report)" in labels) == (~log.alive[k]).any()
+
+
+def test_an_interrupted_animation_leaves_no_file(mission_dir, monkeypatch, tmp_path):
+    from matplotlib import animation
+
+    from swarmraft.experiments.mission_folder import read_mission
+
+    grabbed = []
+    grab = animation.PillowWriter.grab_frame
+
+    def grab_then_stop(self, **kw):
+        grab(self, **kw)
+        grabbed.append(1)
+        if len(grabbed) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(animation.PillowWriter, "grab_frame", grab_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        va.swarm_animation(read_mission(mission_dir).log, tmp_path / "a.gif", every=4)
+    assert len(grabbed) == 3 and list(tmp_path.iterdir()) == []
 
 
 def test_default_every_keeps_a_minute_under_120_frames():

@@ -345,15 +345,14 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
     metric into ``out/figures``; returns what was written (compare.csv, written by
     run_compare, included)."""
     from swarmraft import viz
-    from swarmraft.experiments.compare import COMPARE_METRICS
+    from swarmraft.experiments.compare import COMPARE_METRICS, compare_figure_names
 
     print_table(compare_table(table, title), to)
     written = [Path(out) / "compare.csv"]
-    for metric, (label, log, ref) in COMPARE_METRICS.items():
-        if not np.isnan(np.asarray(table[metric], float)).all():
-            written.append(
-                viz.compare(table, metric, label, log, Path(out) / "figures" / f"{metric}.png", ref)
-            )
+    for name in compare_figure_names(table):
+        metric = name.removesuffix(".png")
+        label, log, ref = COMPARE_METRICS[metric]
+        written.append(viz.compare(table, metric, label, log, Path(out) / "figures" / name, ref))
     return written
 
 

@@ -88,9 +88,11 @@ def swarm_animation(
     else:
         writer = animation.FFMpegWriter(fps=fps, extra_args=["-pix_fmt", "yuv420p"])
     path.parent.mkdir(parents=True, exist_ok=True)
+    # written beside the target and renamed when whole: an interrupted render leaves no half file
+    part = path.with_name(f".{path.stem}.part{path.suffix}")
     fig = plt.figure(figsize=FIGSIZE_IN, dpi=DPI)
     try:
-        with writer.saving(fig, str(path), DPI):
+        with writer.saving(fig, str(part), DPI):
             for j, k in enumerate(steps):
                 fig.clear()
                 ax = fig.add_axes((0.13, 0.2, 0.82, 0.68))
@@ -127,6 +129,8 @@ def swarm_animation(
                 writer.grab_frame()
                 if progress is not None:
                     progress(1)
+        part.replace(path)
     finally:
         plt.close(fig)
+        part.unlink(missing_ok=True)
     return path

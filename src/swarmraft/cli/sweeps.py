@@ -156,6 +156,7 @@ FIGURE_KINDS = ["scaling", "distribution", "recovery", "integrity", "all", "anim
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
     "--out",
+    metavar="FILE",
     help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png); for animation .gif, "
     "or .mp4 with ffmpeg on PATH (default RESULTS/figures/animation.gif)",
 )

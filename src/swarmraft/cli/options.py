@@ -37,17 +37,20 @@ IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 class ImageFile(click.ParamType):
-    """A figure file to write: a name ending in .png, .pdf or .svg, not a folder, with no
-    file on its way."""
+    """A figure file to write: a name ending in one of ``suffixes`` (.png, .pdf or .svg by
+    default), not a folder, with no file on its way."""
 
     name = "file"
 
+    def __init__(self, suffixes: tuple[str, ...] = IMAGE_SUFFIXES) -> None:
+        self.suffixes = suffixes
+
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
         path = Path(value)
-        want = f"give an image file name ending in {', '.join(IMAGE_SUFFIXES[:-1])} or {IMAGE_SUFFIXES[-1]}"
+        want = f"give an image file name ending in {', '.join(self.suffixes[:-1])} or {self.suffixes[-1]}"
         if not str(value):
             self.fail(want, param, ctx)
-        if path.suffix.lower() not in IMAGE_SUFFIXES:
+        if path.suffix.lower() not in self.suffixes:
             self.fail(f"{value}: {want}", param, ctx)
         if path.is_dir():
             self.fail(f"{value} is a folder", param, ctx)

@@ -148,11 +148,17 @@ def calibration_line(out: Path) -> str | None:
     )
 
 
+FIGURE_KINDS = ["scaling", "distribution", "recovery", "integrity", "all", "animation"]
+
+
 @main.command()
-@click.argument("kind", type=click.Choice(["scaling", "distribution", "recovery", "integrity", "all"]))
+@click.argument("kind", type=click.Choice(FIGURE_KINDS))
 @click.argument("results", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
-    "--out", type=ImageFile(), help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png)"
+    "--out",
+    metavar="FILE",
+    help="image file, .png, .pdf or .svg (default RESULTS/figures/KIND.png); for animation .gif, "
+    "or .mp4 with ffmpeg on PATH (default RESULTS/figures/animation.gif)",
 )
 @click.option(
     "--view",
@@ -161,17 +167,90 @@ def calibration_line(out: Path) -> str | None:
     show_default=True,
     help="recovery picture: XY and XZ projections, or 3-D.",
 )
-def figure(kind, results, out, view) -> None:
-    """Draw a figure from a results folder written by `swarmraft sweep`.
+@click.option(
+    "--fps",
+    type=click.FloatRange(min=0, min_open=True),
+    help="animation: frames per second [default 10]",
+)
+@click.option(
+    "--every",
+    type=click.IntRange(min=1),
+    help="animation: draw every k-th step [default: the smallest k giving at most 120 frames]",
+)
+def figure(kind, results, out, view, fps, every) -> None:
+    """Draw a figure from a results folder written by `swarmraft sweep`, or animate a
+    mission's.
 
     scaling: mean error against n (log axis); distribution: box plots of per-trial errors;
     recovery: the paper's picture for (n, f) = (6, 2), (11, 5), (16, 7) drawn with the
     folder's config and seed; integrity: the Stanford diagram (error against protection
     level of every ok verdict, misleading information marked; detectors with a noise model
     only); all: scaling, distribution and recovery.
+
+    animation: a mission's or networked run's folder (`swarmraft mission`, `swarmraft launch`)
+    as the swarm seen from above over time, one frame per --every steps at --fps: true,
+    reported and committed positions, flagged, crashed and jammed drones and the Raft leader
+    marked, time, step and record status in each frame's title.
     """
+    from swarmraft.cli.options import IMAGE_SUFFIXES
+    from swarmraft.viz.animation import ANIMATION_SUFFIXES
+
+    ctx = click.get_current_context()
+    out_param = next(p for p in ctx.command.params if p.name == "out")
+    if kind != "animation":
+        for name, value in (("--fps", fps), ("--every", every)):
+            if value is not None:
+                raise click.BadParameter("only for `swarmraft figure animation`", ctx, param_hint=name)
+    if kind == "animation":
+        if out is not None:
+            out = ImageFile(ANIMATION_SUFFIXES).convert(out, out_param, ctx)
+        draw_animation(results, out, fps or 10.0, every)
+        return
+    if out is not None:
+        out = ImageFile(IMAGE_SUFFIXES).convert(out, out_param, ctx)
+    from swarmraft.experiments.config import ConfigError
+    from swarmraft.experiments.results_folder import folder_kind
+
+    other = folder_kind(results)
+    if other is not None and other != "sweep":
+        instead = (
+            f"each of its sweeps is in {results}/<attack>/<detector>"
+            if other == "compare"
+            else "`swarmraft figure animation` animates it"
+        )
+        raise ConfigError(
+            f"RESULTS: {results} is a {other} folder; `swarmraft figure {kind}` draws from a sweep "
+            f"folder (cells.csv and run.json): {instead}"
+        )
     for path in draw_figures(kind, results, out, view):
         console.print(f"wrote {path}", soft_wrap=True)
+
+
+def draw_animation(results: Path, out: Path | None, fps: float, every: int | None) -> Path:
+    """`swarmraft figure animation`: the folder's mission as a GIF or MP4, with a progress bar."""
+    from swarmraft.experiments.mission_folder import read_mission
+    from swarmraft.experiments.results_folder import require_kind
+    from swarmraft.viz.animation import check_target, default_every, frame_steps, swarm_animation
+
+    require_kind(results, ("mission", "launch"), "RESULTS", "`swarmraft figure animation`")
+    target = out or Path(results) / "figures" / "animation.gif"
+    try:
+        check_target(target)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--out") from None
+    m = read_mission(results, "RESULTS")
+    steps = len(m.log.t)
+    every = every or default_every(steps)
+    frames = len(frame_steps(steps, every))
+    prog, start = progress_bar("animation", "frames")
+    with prog:
+        swarm_animation(m.log, target, fps, every, str(m.summary.get("scenario", "")), start(frames, 0))
+    console.print(
+        f"wrote {target} ({frames} frames, one per {every} of the {steps} steps, {fps:g} frames/s, "
+        f"{target.stat().st_size / 1e6:.1f} MB)",
+        soft_wrap=True,
+    )
+    return target
 
 
 def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = "projections") -> list[Path]:
@@ -267,15 +346,14 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
     metric into ``out/figures``; returns what was written (compare.csv, written by
     run_compare, included)."""
     from swarmraft import viz
-    from swarmraft.experiments.compare import COMPARE_METRICS
+    from swarmraft.experiments.compare import COMPARE_METRICS, compare_figure_names
 
     print_table(compare_table(table, title), to)
     written = [Path(out) / "compare.csv"]
-    for metric, (label, log, ref) in COMPARE_METRICS.items():
-        if not np.isnan(np.asarray(table[metric], float)).all():
-            written.append(
-                viz.compare(table, metric, label, log, Path(out) / "figures" / f"{metric}.png", ref)
-            )
+    for name in compare_figure_names(table):
+        metric = name.removesuffix(".png")
+        label, log, ref = COMPARE_METRICS[metric]
+        written.append(viz.compare(table, metric, label, log, Path(out) / "figures" / name, ref))
     return written
 
 

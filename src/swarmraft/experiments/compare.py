@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from swarmraft.estimation import get_detector
-from swarmraft.experiments.config import SweepConfig
+from swarmraft.experiments.config import ConfigError, SweepConfig
 from swarmraft.experiments.metrics import CELL_COLUMNS, sem
-from swarmraft.experiments.sweep import SweepResult, run_sweep
+from swarmraft.experiments.sweep import CELL_TEXT_COLUMNS, SweepResult, read_run, run_sweep
 from swarmraft.experiments.tables import read_table, write_rows
 
 #: standard errors of the compared metrics that cells.csv does not hold, computed per cell
@@ -112,3 +112,22 @@ def run_compare(
     write_rows(out / "compare.csv", columns, rows)
     table = {c: np.array([r[c] for r in rows]) for c in columns}
     return table, results
+
+
+def read_compare(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+    """A comparison's folder read back: compare.csv's columns, and the run.json of each sweep
+    it ran, keyed by its folder ``attack/detector``; a missing or corrupt file is a one-line
+    error naming it."""
+    folder = Path(folder)
+    table = read_table(folder / "compare.csv", (*CELL_COLUMNS, *SEM_COLUMNS), CELL_TEXT_COLUMNS)
+    if not len(table["n"]):
+        raise ConfigError(f"{folder / 'compare.csv'}: no row in it")
+    runs = {}
+    for attack, det in dict.fromkeys(zip(table["attack"], table["detector"], strict=True)):
+        runs[f"{attack}/{det}"] = read_run(folder / str(attack) / str(det))
+    return table, runs
+
+
+def compare_figure_names(table: dict[str, np.ndarray]) -> list[str]:
+    """The figures `swarmraft compare` draws for this table: one per metric with a value."""
+    return [f"{m}.png" for m in COMPARE_METRICS if not np.isnan(np.asarray(table[m], float)).all()]

@@ -200,6 +200,119 @@ def _place_labels(
         )
 
 
+def swarm_map(
+    ax: plt.Axes,
+    truth: np.ndarray,
+    reported: np.ndarray,
+    verified: np.ndarray,
+    faulty: np.ndarray,
+    spoofed: np.ndarray,
+    outage: np.ndarray,
+    alive: np.ndarray,
+    title: str,
+    leader: int = 0,
+    limits: tuple[tuple[float, float], tuple[float, float]] | None = None,
+) -> None:
+    """One step's swarm seen from above on ``ax`` (each array one row per drone: positions
+    (n, 3), flags (n,)): truth, reports, committed positions; each report tied to its drone's
+    true position by a line (red for a spoofed drone), flagged drones ringed, crashed drones
+    (no report) and jammed drones (reporting their INS) marked, the leader (``leader``, a
+    1-based drone id; 0 = none) marked with a black diamond; drone numbers placed so that they
+    do not overlap. ``limits`` ((xmin, xmax), (ymin, ymax)), m, fix the view; by default it fits
+    every finite point."""
+    tr, rp, vf = truth[:, :2], reported[:, :2], verified[:, :2]
+    for i in range(truth.shape[0]):
+        if np.isfinite(rp[i]).all():
+            sp = bool(spoofed[i])
+            ax.plot(
+                [tr[i, 0], rp[i, 0]],
+                [tr[i, 1], rp[i, 1]],
+                color="red" if sp else "0.6",
+                ls="--" if sp else "-",
+                lw=1.0 if sp else 0.6,
+                label="spoofed report - its drone" if sp else "report - its drone",
+                zorder=1,
+            )
+    ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
+    ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
+    ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
+    f = faulty & np.isfinite(vf).all(axis=1)
+    if f.any():
+        ax.scatter(
+            vf[f, 0], vf[f, 1], s=260, facecolors="none", edgecolors="tab:blue", label="flagged", zorder=4
+        )
+    dead = ~alive
+    if dead.any():
+        ax.scatter(
+            tr[dead, 0], tr[dead, 1], s=150, marker="X", c="black", label="crashed (no report)", zorder=5
+        )
+    jam = outage & alive
+    if jam.any():
+        ax.scatter(
+            tr[jam, 0],
+            tr[jam, 1],
+            s=200,
+            marker="s",
+            facecolors="none",
+            edgecolors="purple",
+            lw=1.4,
+            label="jammed (reports its INS)",
+            zorder=5,
+        )
+    if leader > 0:
+        ax.scatter(
+            tr[leader - 1, 0],
+            tr[leader - 1, 1],
+            s=300,
+            marker="D",
+            facecolors="none",
+            edgecolors="black",
+            lw=1.2,
+            label="Raft leader",
+            zorder=5,
+        )
+    pts = np.concatenate([tr, rp, vf])
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if limits is None:
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        pad = 0.12 * max(hi - lo) + 2.0
+        limits = ((lo[0] - pad, hi[0] + pad), (lo[1] - pad, hi[1] + pad))
+    ax.set_xlim(*limits[0])
+    ax.set_ylim(*limits[1])
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("east, m")
+    ax.grid(True, ls=":", alpha=0.5)
+    labels, anchors = [], []
+    for i in range(truth.shape[0]):
+        labels.append(str(i + 1))
+        anchors.append(tr[i])
+        if spoofed[i] and np.isfinite(rp[i]).all():
+            labels.append(f"{i + 1}'")
+            anchors.append(rp[i])
+    _place_labels(ax, np.array(anchors), labels, pts)
+
+
+def map_legend(fig: plt.Figure, axes: Sequence[plt.Axes], ncol: int = 5, markerscale: float = 1.0) -> None:
+    """One legend under the maps for every kind of marker any of them drew, at most ``ncol`` a
+    row, markers drawn ``markerscale`` times their size on the map."""
+    handles, labels = [], []
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(
+        handles,
+        labels,
+        loc="lower center",
+        ncol=min(len(labels), ncol),
+        frameon=False,
+        fontsize=8,
+        markerscale=markerscale,
+    )
+
+
 def swarm_maps(
     truth: np.ndarray,
     reported: np.ndarray,
@@ -212,81 +325,26 @@ def swarm_maps(
     outage: np.ndarray | None = None,
     alive: np.ndarray | None = None,
 ) -> Path:
-    """XY maps at chosen steps: truth, reports, committed positions; each report tied to its
-    drone's true position by a line (red for a spoofed drone), flagged drones ringed, crashed
-    drones (no report) and jammed drones (reporting their INS) marked; drone numbers placed so
-    that they do not overlap."""
+    """XY maps at chosen steps, one panel each (`swarm_map`), side by side."""
     spoofed = np.zeros_like(faulty) if spoofed is None else spoofed
     outage = np.zeros_like(faulty) if outage is None else outage
     alive = np.ones_like(faulty) if alive is None else alive
     k = len(steps)
     fig, axes = plt.subplots(1, k, figsize=(5.4 * k, 5.4), squeeze=False)
     for ax, s in zip(axes[0], steps, strict=True):
-        tr, rp, vf = truth[s, :, :2], reported[s, :, :2], verified[s, :, :2]
-        for i in range(truth.shape[1]):
-            if np.isfinite(rp[i]).all():
-                sp = bool(spoofed[s, i])
-                ax.plot(
-                    [tr[i, 0], rp[i, 0]],
-                    [tr[i, 1], rp[i, 1]],
-                    color="red" if sp else "0.6",
-                    ls="--" if sp else "-",
-                    lw=1.0 if sp else 0.6,
-                    label="spoofed report - its drone" if sp else "report - its drone",
-                    zorder=1,
-                )
-        ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
-        ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
-        ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
-        f = faulty[s] & np.isfinite(vf).all(axis=1)
-        if f.any():
-            ax.scatter(
-                vf[f, 0], vf[f, 1], s=260, facecolors="none", edgecolors="tab:blue", label="flagged", zorder=4
-            )
-        dead = ~alive[s]
-        if dead.any():
-            ax.scatter(
-                tr[dead, 0], tr[dead, 1], s=150, marker="X", c="black", label="crashed (no report)", zorder=5
-            )
-        jam = outage[s] & alive[s]
-        if jam.any():
-            ax.scatter(
-                tr[jam, 0],
-                tr[jam, 1],
-                s=200,
-                marker="s",
-                facecolors="none",
-                edgecolors="purple",
-                lw=1.4,
-                label="jammed (reports its INS)",
-                zorder=5,
-            )
-        pts = np.concatenate([tr, rp, vf])
-        pts = pts[np.isfinite(pts).all(axis=1)]
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        pad = 0.12 * max(hi - lo) + 2.0
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(lo[1] - pad, hi[1] + pad)
-        ax.set_aspect("equal", adjustable="box")
-        ax.set_title(f"t = {t[s]:.1f} s", fontsize=10)
-        ax.set_xlabel("east, m")
-        ax.grid(True, ls=":", alpha=0.5)
-        labels, anchors = [], []
-        for i in range(truth.shape[1]):
-            labels.append(str(i + 1))
-            anchors.append(tr[i])
-            if spoofed[s, i] and np.isfinite(rp[i]).all():
-                labels.append(f"{i + 1}'")
-                anchors.append(rp[i])
-        _place_labels(ax, np.array(anchors), labels, pts)
+        swarm_map(
+            ax,
+            truth[s],
+            reported[s],
+            verified[s],
+            faulty[s],
+            spoofed[s],
+            outage[s],
+            alive[s],
+            f"t = {t[s]:.1f} s",
+        )
     axes[0][0].set_ylabel("north, m")
-    handles, labels = [], []
-    for ax in axes[0]:
-        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 5), frameon=False, fontsize=8)
+    map_legend(fig, axes[0])
     fig.suptitle("Swarm seen from above (n' labels the spoofed report of drone n)", fontsize=10)
     fig.tight_layout(rect=(0, 0.1, 1, 0.97))
     return _save(fig, path)

@@ -80,3 +80,22 @@ def test_swarm_bound_matches_monte_carlo_of_the_joint_estimator():
     assert np.mean(nees > CHI2_3DOF_999) < 0.004
     # ranges make the honest drones better than their own GNSS
     assert (tr[0, 1:] < np.trace(S)).all()
+
+
+def test_swarm_bound_in_chunks_is_the_bound_in_one_piece(monkeypatch):
+    # memory is bounded by building the information a few problems at a time; a chunk that
+    # slices one argument wrongly (per-problem INS priors) or misplaces its result shows here
+    from swarmraft.estimation import bounds
+
+    rng = np.random.default_rng(3)
+    T, n = 7, 6
+    truth = rng.uniform(-30, 30, (T, n, 3))
+    trusted = rng.random((T, n)) < 0.7
+    measured = rng.random((T, n, n)) < 0.8
+    ins = np.eye(3) * rng.uniform(1, 9, (T, n, 1, 1))
+    G = gnss_covariance(1.5, 3.0)
+    whole = swarm_crb(truth, trusted, measured, G, 0.1, ins_cov=ins, common_cov=np.eye(3))
+    monkeypatch.setattr(bounds, "CHUNK_BYTES", 1)  # one problem per chunk
+    parts = swarm_crb(truth, trusted, measured, G, 0.1, ins_cov=ins, common_cov=np.eye(3))
+    assert np.array_equal(whole, parts)
+    assert np.isfinite(whole).all() and len({float(c[0, 0, 0]) for c in whole}) == T

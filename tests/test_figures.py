@@ -162,6 +162,30 @@ def test_error_over_time_labels_faults_and_marks_wrong_partition_steps(drawn):
     assert "wrong partition in 2 steps" in fig._suptitle.get_text()
 
 
+def test_error_over_time_of_a_large_swarm_draws_every_faulty_drone_and_summarises_the_rest(drawn):
+    # 64 panels would take seconds and say nothing: the drones with something to see get a
+    # panel each, the others one panel of median and maximum; none is silently dropped
+    S, n = 30, 64
+    t = np.arange(S) * 0.1
+    no = np.zeros((S, n), bool)
+    spoofed, outage, alive, wrong = no.copy(), no.copy(), np.ones((S, n), bool), no.copy()
+    spoofed[10:, [4, 40]] = True
+    outage[5:20, 50] = True
+    alive[12:, 63] = False
+    wrong[[7, 8], 21] = True  # an honest drone flagged
+    errors = _errors(S, n)
+    errors["swarmraft"][:, 30] = 9.0  # the worst of the others: their maximum
+    vm.error_over_time(t, errors, spoofed, outage, [], "x.png", alive=alive, wrong=wrong)
+    fig = drawn[0]
+    titles = [ax.get_title() for ax in fig.axes if ax.axison]
+    assert titles[:5] == ["drone 5", "drone 22", "drone 41", "drone 51", "drone 64 (crashed at 1.2 s)"]
+    assert titles[5] == "the other 59 drones: median (solid), maximum (thin)" and len(titles) == 6
+    rest = [ax for ax in fig.axes if ax.get_title().startswith("the other")][0]
+    sr = [np.asarray(ln.get_ydata()) for ln in rest.lines if ln.get_color() == "tab:blue"]
+    assert sorted(float(y.max()) for y in sr) == [0.0, 9.0]  # median 0 m, maximum 9 m
+    assert "5 of 64 drones drawn one by one" in fig._suptitle.get_text()
+
+
 def test_swarm_maps_tie_spoofed_reports_to_their_drones_and_labels_do_not_overlap(drawn):
     rng = np.random.default_rng(3)
     n = 9

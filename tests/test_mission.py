@@ -153,6 +153,21 @@ def test_step_record_round_trip_and_dedup():
     assert d.state.skipped == [0, 1, 2, 4, 5] and d.state.ignored == 1
 
 
+def test_a_drone_keeps_only_its_newest_records_and_the_mission_log_every_step():
+    from swarmraft.protocol.drone import RECORDS_KEPT
+
+    d = SwarmDrone(0, ProtocolConfig(n=4), Keyring.generate(4, np.random.default_rng(0)))
+    z = np.zeros((4, 3))
+    for k in range(3 * RECORDS_KEPT):
+        d.apply(StepRecord(k, 1, z + k, np.zeros(4, bool), np.zeros(4, bool), "ok", "joint", str(k)).encode())
+    assert sorted(d.state.records) == list(range(2 * RECORDS_KEPT, 3 * RECORDS_KEPT))
+    assert d.state.records[d.state.last_step].positions[0, 0] == 3 * RECORDS_KEPT - 1
+    log = run_mission(Scenario(drones=5, duration_s=2 * RECORDS_KEPT * 0.1, seed=1))
+    # the steps older than any drone still keeps are in the log, with their positions
+    assert log.committed[5:RECORDS_KEPT].all() and (log.status[5:RECORDS_KEPT] != "skipped").all()
+    assert np.isfinite(log.verified[5:RECORDS_KEPT]).any(axis=(1, 2)).all()
+
+
 def test_reports_are_signed():
     keys = Keyring.generate(3, np.random.default_rng(1))
     leader = SwarmDrone(0, ProtocolConfig(n=3), keys)

@@ -48,9 +48,17 @@ class ProtocolConfig:
     prior_sigma: float = 3.0  # m: the last record's position, one step (up to ~1 m of motion) old
 
 
+#: records a drone keeps (the newest): the protocol reads only the last one (the next step's
+#: prior); a host that wants every record takes each as it is applied (the simulator's mission
+#: log, the networked drone's records file). Keeping all of them grew by 16.5 MB a minute in
+#: a 17-drone mission.
+RECORDS_KEPT = 32
+
+
 @dataclass
 class Applied:
-    """A drone's replicated state: records by step, and the steps passed over."""
+    """A drone's replicated state: the newest RECORDS_KEPT records by step, and the steps
+    passed over."""
 
     records: dict[int, StepRecord] = field(default_factory=dict)
     skipped: list[int] = field(default_factory=list)
@@ -89,6 +97,8 @@ class SwarmDrone:
         st.skipped.extend(range(st.last_step + 1, rec.step))
         st.records[rec.step] = rec
         st.last_step = rec.step
+        while len(st.records) > RECORDS_KEPT:
+            del st.records[next(iter(st.records))]  # steps arrive in order: the first is the oldest
         return rec
 
     # -- leader -----------------------------------------------------------------------------

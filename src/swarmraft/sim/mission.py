@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmraft.protocol import Keyring, Report, SwarmDrone
+from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.raft import Entry, EntryKind
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -144,6 +144,7 @@ class Mission:
         self.log = world_log(w)
         self.sent_to: dict[int, int | None] = {}
         self._first_apply: dict[int, float] = {}
+        self._records: dict[int, StepRecord] = {}  # step -> its record, as first applied
 
     # -- sensing and reporting --------------------------------------------------------------
     def _ins(self, k: int) -> np.ndarray:
@@ -244,6 +245,7 @@ class Mission:
         self.log.node_records.setdefault(node, []).append((rec.step, rec.digest))
         now = self.cluster.now
         self._first_apply.setdefault(rec.step, now)
+        self._records.setdefault(rec.step, rec)  # every node applies the same (tests check digests)
         # The drone takes its verified position: its INS is aligned to it (for a flagged drone
         # this is the reset to its recovered position). Not when replaying old records after a
         # restart.
@@ -318,10 +320,7 @@ class Mission:
 
     def _finish(self) -> MissionLog:
         log = self.log
-        # The records every node holds are the same (checked by the tests); read them from the
-        # node that applied the most.
-        best = max(self.drones, key=lambda d: len(d.state.records))
-        for k, rec in best.state.records.items():
+        for k, rec in self._records.items():
             if k >= len(log.t):
                 continue
             log.committed[k] = True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -44,6 +45,11 @@ def _fault_lines(ax: plt.Axes, events: Sequence[tuple[float, str]], label_it: bo
             )
 
 
+#: at most this many panels; a larger swarm gets a panel for each drone with something to see
+#: (wrong side of a partition, spoofed, jammed, crashed) and one for all the others
+MAX_PANELS = 16
+
+
 def error_over_time(
     t: np.ndarray,
     errors: dict[str, np.ndarray],
@@ -61,53 +67,31 @@ def error_over_time(
     where there are any. ``wrong`` (steps x drones) marks the steps whose record put the drone
     on the wrong side of the partition (an honest drone flagged, a spoofed one not flagged):
     a marker on that drone's SwarmRaft error, and a tick at the top of every panel. The
-    axis is logarithmic above LINEAR_BELOW_M and linear below it, so zero is drawn at zero."""
+    axis is logarithmic above LINEAR_BELOW_M and linear below it, so zero is drawn at zero.
+
+    More than MAX_PANELS drones: a panel for each drone ever on the wrong side, then spoofed,
+    jammed or crashed, up to MAX_PANELS - 1 of them, and a last panel for all the others,
+    drawn as the median and the maximum over them at each step (the title says how many)."""
     n = spoofed.shape[1]
     alive = np.ones_like(spoofed) if alive is None else alive
     wrong = np.zeros_like(spoofed) if wrong is None else wrong
     wrong_step = wrong.any(axis=1)
-    cols = int(np.ceil(np.sqrt(n)))
-    rows = int(np.ceil(n / cols))
+    singles, rest = _panel_drones(spoofed, outage, alive, wrong)
+    panels = len(singles) + (1 if rest.size else 0)
+    cols = int(np.ceil(np.sqrt(panels)))
+    rows = int(np.ceil(panels / cols))
     fig, axes = plt.subplots(
         rows, cols, figsize=(3.8 * cols, 2.8 * rows), sharex=True, sharey=True, squeeze=False
     )
-    for i in range(rows * cols):
-        ax = axes.flat[i]
-        if i >= n:
+    for k in range(rows * cols):
+        ax = axes.flat[k]
+        if k >= panels:
             ax.axis("off")
             continue
-        ax.plot(t, errors["gnss"][:, i], color="tab:red", lw=0.8, label="raw GNSS")
-        ax.plot(t, errors["ins_alone"][:, i], color="tab:gray", lw=0.8, ls=":", label="INS never reset")
-        if np.isfinite(errors["ins_aligned"][:, i]).any():
-            ax.plot(
-                t,
-                errors["ins_aligned"][:, i],
-                color="purple",
-                lw=1.0,
-                ls="-.",
-                label="INS aligned at the outage's start",
-            )
-        ax.plot(t, errors["swarmraft"][:, i], color="tab:blue", lw=0.9, label="SwarmRaft")
-        if np.isfinite(errors["snapshot_bound"][:, i]).any():
-            ax.plot(t, errors["snapshot_bound"][:, i], color="black", lw=0.8, ls="--", label="snapshot bound")
-        _shade(ax, t, spoofed[:, i], "red", "spoofed")
-        _shade(ax, t, outage[:, i], "purple", "GNSS outage")
-        _shade(ax, t, ~alive[:, i], "black", "crashed (not reporting)")
-        _fault_lines(ax, events, label_it=i < cols)
+        group = np.array([singles[k]]) if k < len(singles) else rest
+        _error_panel(ax, t, errors, group, spoofed, outage, alive, wrong)
+        _fault_lines(ax, events, label_it=k < cols)
         ax.set_yscale("symlog", linthresh=LINEAR_BELOW_M, linscale=0.4)
-        mine = wrong[:, i]
-        if mine.any():
-            y = np.nan_to_num(errors["swarmraft"][mine, i], nan=0.0)
-            ax.plot(
-                t[mine],
-                y,
-                "o",
-                ms=4,
-                mfc="none",
-                mec="darkorange",
-                mew=1.2,
-                label="this drone on the wrong side",
-            )
         if wrong_step.any():
             ax.plot(
                 t[wrong_step],
@@ -118,12 +102,16 @@ def error_over_time(
                 transform=ax.get_xaxis_transform(),
                 label="wrong-partition step",
             )
-        down = np.flatnonzero(~alive[:, i])
-        ax.set_title(
-            f"drone {i + 1}" + (f" (crashed at {t[down[0]]:.1f} s)" if down.size else ""),
-            fontsize=9,
-            color="black" if not down.size else "dimgray",
-        )
+        if group.size == 1:
+            i = int(group[0])
+            down = np.flatnonzero(~alive[:, i])
+            ax.set_title(
+                f"drone {i + 1}" + (f" (crashed at {t[down[0]]:.1f} s)" if down.size else ""),
+                fontsize=9,
+                color="black" if not down.size else "dimgray",
+            )
+        else:
+            ax.set_title(f"the other {group.size} drones: median (solid), maximum (thin)", fontsize=9)
         ax.grid(True, which="major", ls=":", alpha=0.5)
     drawn = np.concatenate([np.ravel(v) for v in errors.values()])
     drawn = drawn[np.isfinite(drawn)]
@@ -146,6 +134,8 @@ def error_over_time(
     notes.append(
         f"wrong partition in {int(wrong_step.sum())} steps" if wrong_step.any() else "no wrong-partition step"
     )
+    if rest.size:
+        notes.append(f"{len(singles)} of {n} drones drawn one by one")
     fig.suptitle(
         f"Position error per drone{': ' + title if title else ''}\n{'; '.join(notes)}",
         fontsize=10,
@@ -153,6 +143,67 @@ def error_over_time(
     legend_rows = int(np.ceil(len(labels) / 5))
     fig.tight_layout(rect=(0, 0.025 + 0.025 * legend_rows, 1, 0.97))
     return _save(fig, path)
+
+
+def _panel_drones(
+    spoofed: np.ndarray, outage: np.ndarray, alive: np.ndarray, wrong: np.ndarray
+) -> tuple[list[int], np.ndarray]:
+    """The drones drawn one per panel, and the others (drawn together in one panel)."""
+    n = spoofed.shape[1]
+    if n <= MAX_PANELS:
+        return list(range(n)), np.array([], int)
+    order: list[int] = []
+    for mask in (wrong.any(axis=0), spoofed.any(axis=0), outage.any(axis=0), (~alive).any(axis=0)):
+        order += [int(i) for i in np.flatnonzero(mask) if i not in order]
+    singles = sorted(order[: MAX_PANELS - 1])
+    return singles, np.array([i for i in range(n) if i not in singles], int)
+
+
+def _error_panel(
+    ax: plt.Axes,
+    t: np.ndarray,
+    errors: dict[str, np.ndarray],
+    group: np.ndarray,
+    spoofed: np.ndarray,
+    outage: np.ndarray,
+    alive: np.ndarray,
+    wrong: np.ndarray,
+) -> None:
+    """One drone's error series, or for a group the median and maximum over its drones."""
+
+    def draw(key: str, **style) -> None:
+        y = errors[key][:, group]
+        if not np.isfinite(y).any():
+            return
+        if group.size == 1:
+            ax.plot(t, y[:, 0], **style)
+            return
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-nan steps give nan
+            ax.plot(t, np.nanmedian(y, axis=1), **style)
+            ax.plot(t, np.nanmax(y, axis=1), **{**style, "lw": 0.5, "alpha": 0.6, "label": "_nolegend_"})
+
+    draw("gnss", color="tab:red", lw=0.8, label="raw GNSS")
+    draw("ins_alone", color="tab:gray", lw=0.8, ls=":", label="INS never reset")
+    draw("ins_aligned", color="purple", lw=1.0, ls="-.", label="INS aligned at the outage's start")
+    draw("swarmraft", color="tab:blue", lw=0.9, label="SwarmRaft")
+    draw("snapshot_bound", color="black", lw=0.8, ls="--", label="snapshot bound")
+    _shade(ax, t, spoofed[:, group].any(axis=1), "red", "spoofed")
+    _shade(ax, t, outage[:, group].any(axis=1), "purple", "GNSS outage")
+    _shade(ax, t, (~alive[:, group]).any(axis=1), "black", "crashed (not reporting)")
+    mine = wrong[:, group].any(axis=1)
+    if mine.any():
+        y = np.nan_to_num(np.nanmax(errors["swarmraft"][mine][:, group], axis=1), nan=0.0)
+        ax.plot(
+            t[mine],
+            y,
+            "o",
+            ms=4,
+            mfc="none",
+            mec="darkorange",
+            mew=1.2,
+            label="this drone on the wrong side",
+        )
 
 
 def _place_labels(

@@ -211,14 +211,24 @@ def test_heartbeat_answer_resends_only_if_no_append_followed_the_heartbeat():
     flush(n)  # the append of index 2 leaves after the heartbeat
     n.step(Message(MsgType.HEARTBEAT_RESP, 2, 1, n.term))  # follower 2 lacks index 2 yet
     assert flush(n) == []  # the append's own answer will tell
-    beats = []
-    for _ in range(n.config.flow_heartbeat_tick):  # the append's answer never comes
-        n.tick()
-        beats += msgs_of(n, MsgType.HEARTBEAT)
-    assert sorted(m.to for m in beats) == [2, 3]
+    n.tick()  # no answer came: the commit waits, so heartbeats keep their interval
+    assert sorted(m.to for m in msgs_of(n, MsgType.HEARTBEAT)) == [2, 3]
     n.step(Message(MsgType.HEARTBEAT_RESP, 2, 1, n.term))  # no append followed this heartbeat
     (m,) = msgs_of(n, MsgType.APP)
     assert m.to == 2 and m.index == 2 and not m.entries  # the follower's answer repairs it
+
+
+def test_heartbeats_keep_their_interval_to_followers_a_waiting_commit_needs():
+    n = replicating_leader(range(1, 6), election=15, heartbeat=5)
+    n.propose(b"x")
+    flush(n)
+    ack(n, 2, 2)
+    ack(n, 3, 2)  # committed: the silence of 4 and 5 costs nothing
+    assert n.log.committed == 2 and ticked(n, 12) == []
+    n.propose(b"y")
+    flush(n)
+    ack(n, 2, 3)  # not committed: 3, 4 and 5 owe answers, and one may have been lost
+    assert sorted(m.to for m in ticked(n, 5)) == [3, 4, 5]
 
 
 def test_followers_that_do_not_answer_get_heartbeats_at_the_slower_pace():

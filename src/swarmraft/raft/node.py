@@ -269,13 +269,18 @@ class RaftNode:
                 self._become_follower(self.term, None)
                 return
         # A heartbeat goes to a follower that heard nothing from us for a heartbeat interval;
-        # for flow_heartbeat_tick when our last message to it was a pipelined append, or when
-        # it answered nothing in the last election timeout (crashed or cut off: it still hears
-        # from us before its own election timeout ends once it is back).
+        # for flow_heartbeat_tick when our last message to it was a pipelined append (unless
+        # it still owes an answer for entries that are not committed: a lost answer would stall
+        # the commit until the next append), or when it answered nothing in the last election
+        # timeout (crashed or cut off: once back, it still hears from us before its own
+        # election timeout ends).
         beat, flow_beat = self.config.heartbeat_tick, self.config.flow_heartbeat_tick
+        last = self.log.last_index()
+        stalled = self.log.committed < last
         for p, pr in self.prs.items():
             pr.silent += 1
-            slow = pr.flowing or not (pr.responsive or pr.recent_active)
+            owes = stalled and pr.match < last
+            slow = (pr.flowing and not owes) or not (pr.responsive or pr.recent_active)
             if pr.silent >= (flow_beat if slow else beat):
                 pr.silent, pr.flowing = 0, False
                 self._send(

@@ -25,7 +25,10 @@ def make_node(
     pre_vote: bool = False,
     check_quorum: bool = False,
     seed: int = 0,
+    **options: int,
 ) -> RaftNode:
+    """A node with 10-tick election timeouts and 1-tick heartbeats; ``options`` are further
+    `RaftConfig` fields (flow control limits)."""
     cfg = RaftConfig(
         id=nid,
         peers=tuple(p for p in peers if p != nid),
@@ -33,6 +36,7 @@ def make_node(
         heartbeat_tick=heartbeat,
         pre_vote=pre_vote,
         check_quorum=check_quorum,
+        **options,
     )
     return RaftNode(cfg, storage or MemoryStorage(), random.Random(seed + nid))
 

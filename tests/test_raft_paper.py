@@ -203,8 +203,12 @@ def test_leader_commits_by_majority_and_tells_followers():
     net.campaign(1)
     net.propose(1, b"x")
     assert a.log.committed == 2 and [e.data for e in a.log.slice(1, 3)] == [b"", b"x"]
-    a.tick()
-    net.send()
+    # the commit index travels with the leader's next message: here its next heartbeat, due
+    # once the followers have heard nothing for flow_heartbeat_tick ticks after the append
+    for _ in range(a.config.flow_heartbeat_tick):
+        assert b.log.committed < 2
+        a.tick()
+        net.send()
     assert b.log.committed == 2 and c.log.committed == 2
     assert b.status.applied == 2
 

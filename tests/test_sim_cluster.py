@@ -39,6 +39,32 @@ def test_elects_one_leader_and_replicates():
     assert c.messages["MsgApp"] > 0 and c.messages["MsgHeartbeat"] > 0
 
 
+def test_one_proposal_per_ms_costs_at_most_three_messages_per_follower_per_commit():
+    n = 5
+    c = Cluster(n, seed=1)
+    lead = elected(c)
+    c.run(200)
+    sent0, commit0 = sum(c.sent.values()), c.status(lead).commit
+    for k in range(300):
+        assert c.propose(f"p{k}".encode())
+        c.run(1)
+    commits = c.status(lead).commit - commit0
+    assert commits >= 290
+    assert sum(c.sent.values()) - sent0 <= 3 * (n - 1) * commits
+    want = [f"p{k}".encode() for k in range(300)]
+    assert c.run_until(lambda: all_applied(c, want), 1000)  # the last commit index arrives too
+
+
+def test_cluster_counts_proposals_refused_beyond_the_uncommitted_cap():
+    c = Cluster(3, seed=2, raft_options={"max_uncommitted_bytes": 150})
+    lead = elected(c)
+    c.isolate(lead)  # nothing it appends can commit
+    assert c.propose(bytes(100), via=lead)
+    assert not c.propose(bytes(100), via=lead) and c.refused == 1
+    c.heal()
+    assert c.run_until(lambda: all_applied(c, [bytes(100)]), 3000)
+
+
 def test_proposal_forwarding_through_a_follower():
     c = Cluster(3, seed=2)
     lead = elected(c)

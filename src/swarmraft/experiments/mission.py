@@ -346,6 +346,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "raft_messages_per_committed_step": round(raft_per, 2),
         "raft_minimum_per_step": per_step_min,
         "reports_per_step": round(float(log.report_messages.mean()), 2),
+        "refused_proposals": log.refused_proposals,
         "events": [f"{t:.1f} s: {e}" for t, e in log.events],
         "integrity": integrity_summary(log),
     }

@@ -53,7 +53,17 @@ from swarmraft.net.status import ReplyLimit, encode_reply
 from swarmraft.net.swarmfile import SwarmFile, drone_file, load_swarm
 from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
-from swarmraft.raft import Entry, EntryKind, Message, NotLeader, RaftConfig, RaftNode, Role, SQLiteStorage
+from swarmraft.raft import (
+    Entry,
+    EntryKind,
+    Message,
+    NotLeader,
+    ProposalDropped,
+    RaftConfig,
+    RaftNode,
+    Role,
+    SQLiteStorage,
+)
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.sim.sensing import ScenarioWorld
 
@@ -671,13 +681,16 @@ class DroneHost:
             _logger.exception("drone %d: verification failed", self.id)
             rec = None
         if rec is not None:
-            data = rec.encode()
+            data, step = rec.encode(), rec.step
 
             def propose() -> None:
                 try:
                     self.node.propose(data)
                 except NotLeader:
                     self.counters["proposals_not_leader"] += 1
+                except ProposalDropped as exc:  # too much uncommitted: the step is skipped
+                    self.counters["proposals_refused"] += 1
+                    self._event("proposal_refused", step=step, reason=str(exc))
 
             self._push(propose)
         backlog, self._backlog = self._backlog, []

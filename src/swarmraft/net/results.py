@@ -83,6 +83,8 @@ def launch_log(
         for e in evs:
             if e["event"] == "role" and e.get("role") == "leader":
                 leader_of_term.setdefault(int(e["term"]), d)
+            elif e["event"] == "proposal_refused":
+                log.refused_proposals += 1
         for a, b in _up_intervals(evs, (kills or {}).get(d, [])):
             log.alive[:, i] |= (step_start >= a) & (step_start < b)
         recs = []

@@ -2,7 +2,8 @@
 global randomness. Knows nothing of drones."""
 
 from swarmraft.raft.log import RaftLog, RaftSafetyError
-from swarmraft.raft.node import Progress, RaftNode
+from swarmraft.raft.node import RaftNode
+from swarmraft.raft.progress import Inflights, Progress
 from swarmraft.raft.storage import MemoryStorage, SQLiteStorage, Storage
 from swarmraft.raft.types import (
     Entry,
@@ -11,6 +12,7 @@ from swarmraft.raft.types import (
     Message,
     MsgType,
     NotLeader,
+    ProposalDropped,
     RaftConfig,
     Ready,
     Role,
@@ -21,11 +23,13 @@ __all__ = [
     "Entry",
     "EntryKind",
     "HardState",
+    "Inflights",
     "MemoryStorage",
     "Message",
     "MsgType",
     "NotLeader",
     "Progress",
+    "ProposalDropped",
     "RaftConfig",
     "RaftLog",
     "RaftNode",

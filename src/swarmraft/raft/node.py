@@ -4,14 +4,21 @@ The host drives it: ``tick()`` on a clock, ``step(message)`` for each message re
 ``propose(data)`` for new entries, then ``ready()`` -> persist, send, apply -> ``advance()``.
 No I/O, no clock, no global randomness: election timeouts come from the ``random.Random``
 passed in.
+
+Flow control follows etcd-io/raft (`progress`): a leader answers an acknowledgement only with
+entries the follower still lacks, pipelines appends within a window per follower, and refuses
+proposals beyond a cap on uncommitted bytes (`ProposalDropped`). A new commit index travels
+with the next append or heartbeat, never in a message of its own, and a follower that gets
+appends gets no heartbeats until it has heard nothing for ``flow_heartbeat_tick`` ticks.
 """
 
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from collections import deque
 
 from swarmraft.raft.log import RaftLog
+from swarmraft.raft.progress import Inflights, Progress
 from swarmraft.raft.storage import Storage
 from swarmraft.raft.types import (
     Entry,
@@ -20,23 +27,12 @@ from swarmraft.raft.types import (
     Message,
     MsgType,
     NotLeader,
+    ProposalDropped,
     RaftConfig,
     Ready,
     Role,
     Status,
 )
-
-
-@dataclass
-class Progress:
-    """The leader's view of one follower. ``probe``: one append in flight until answered;
-    ``replicate``: appends are pipelined optimistically."""
-
-    match: int = 0
-    next: int = 1
-    probe: bool = True
-    paused: bool = False
-    recent_active: bool = False
 
 
 class RaftNode:
@@ -55,8 +51,10 @@ class RaftNode:
         self.prs: dict[int, Progress] = {}
         self.msgs: list[Message] = []
         self.election_elapsed = 0
-        self.heartbeat_elapsed = 0
         self.randomized_timeout = self._draw_timeout()
+        # the leader's entries of its term not yet committed: (index, payload bytes), in order
+        self._uncommitted: deque[tuple[int, int]] = deque()
+        self._uncommitted_bytes = 0
 
     # -- public API -----------------------------------------------------------------------
     @property
@@ -91,11 +89,13 @@ class RaftNode:
             self._become_candidate()
 
     def propose(self, data: bytes) -> int | None:
-        """Propose an entry. The leader appends it and returns its index; a follower that
-        knows the leader forwards it (returns None); otherwise `NotLeader`."""
+        """Propose an entry. The leader appends it and returns its index, or raises
+        `ProposalDropped` if its uncommitted entries would pass ``max_uncommitted_bytes``; a
+        follower that knows the leader forwards it (returns None); otherwise `NotLeader`."""
         if not isinstance(data, bytes | bytearray):
             raise TypeError("propose: data must be bytes")
         if self.role == Role.LEADER:
+            self._check_uncommitted(len(data))
             return self._append_and_broadcast([bytes(data)])
         if self.role == Role.FOLLOWER and self.lead is not None and self.config.forward_proposals:
             self._send(Message(MsgType.PROP, self.id, self.lead, 0, entries=(Entry(0, 0, bytes(data)),)))
@@ -144,8 +144,12 @@ class RaftNode:
             return
         if m.term > self.term:
             if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
+                # The Raft thesis, section 9.6: a node that heard from a leader within the
+                # shortest election timeout ignores (pre-)votes, so a node that cannot hear the
+                # leader cannot depose it. On with CheckQuorum or PreVote: with PreVote alone,
+                # nodes that still hear the leader would grant the pre-vote.
                 in_lease = (
-                    self.config.check_quorum
+                    (self.config.check_quorum or self.config.pre_vote)
                     and self.lead is not None
                     and self.election_elapsed < self.config.election_tick
                 )
@@ -188,7 +192,6 @@ class RaftNode:
             self.vote = None
         self.lead = None
         self.election_elapsed = 0
-        self.heartbeat_elapsed = 0
         self.randomized_timeout = self._draw_timeout()
         self.votes = {}
 
@@ -244,48 +247,89 @@ class RaftNode:
         self._reset(self.term)
         self.role = Role.LEADER
         self.lead = self.id
-        last = self.log.last_index()
-        self.prs = {p: Progress(match=0, next=last + 1) for p in self.config.peers}
+        last, cfg = self.log.last_index(), self.config
+        self.prs = {
+            p: Progress(Inflights(cfg.max_inflight_msgs, cfg.max_inflight_bytes), match=0, next=last + 1)
+            for p in cfg.peers
+        }
+        self._uncommitted.clear()
+        self._uncommitted_bytes = 0
         # A no-op entry of the new term lets entries of earlier terms commit through it.
         self._append_and_broadcast([b""], kind=EntryKind.NOOP)
 
     # -- leader ---------------------------------------------------------------------------
     def _tick_leader(self) -> None:
-        self.heartbeat_elapsed += 1
         self.election_elapsed += 1
         if self.election_elapsed >= self.config.election_tick:
             self.election_elapsed = 0
-            if self.config.check_quorum:
-                active = 1 + sum(pr.recent_active for pr in self.prs.values())
-                for pr in self.prs.values():
-                    pr.recent_active = False
-                if active < self._quorum():
-                    self._become_follower(self.term, None)
-                    return
-        if self.heartbeat_elapsed >= self.config.heartbeat_tick:
-            self.heartbeat_elapsed = 0
-            for p, pr in self.prs.items():
+            active = 1 + sum(pr.recent_active for pr in self.prs.values())
+            for pr in self.prs.values():
+                pr.responsive, pr.recent_active = pr.recent_active, False
+            if self.config.check_quorum and active < self._quorum():
+                self._become_follower(self.term, None)
+                return
+        # A heartbeat goes to a follower that heard nothing from us for a heartbeat interval;
+        # for flow_heartbeat_tick when our last message to it was a pipelined append (unless
+        # it still owes an answer for entries that are not committed: a lost answer would stall
+        # the commit until the next append), or when it answered nothing in the last election
+        # timeout (crashed or cut off: once back, it still hears from us before its own
+        # election timeout ends).
+        beat, flow_beat = self.config.heartbeat_tick, self.config.flow_heartbeat_tick
+        last = self.log.last_index()
+        stalled = self.log.committed < last
+        for p, pr in self.prs.items():
+            pr.silent += 1
+            owes = stalled and pr.match < last
+            slow = (pr.flowing and not owes) or not (pr.responsive or pr.recent_active)
+            if pr.silent >= (flow_beat if slow else beat):
+                pr.silent, pr.flowing = 0, False
                 self._send(
                     Message(
                         MsgType.HEARTBEAT, self.id, p, self.term, commit=min(pr.match, self.log.committed)
                     )
                 )
 
+    def _check_uncommitted(self, size: int) -> None:
+        """Raise `ProposalDropped` if ``size`` more bytes would pass the uncommitted cap (one
+        entry is always admitted when nothing is uncommitted, and empty ones always are)."""
+        u, cap = self._uncommitted_bytes, self.config.max_uncommitted_bytes
+        if u > 0 and size > 0 and u + size > cap:
+            raise ProposalDropped(self.id, size, u, cap)
+
     def _append_and_broadcast(self, datas: list[bytes], kind: EntryKind = EntryKind.NORMAL) -> int:
         first = self.log.last_index() + 1
         entries = [Entry(self.term, first + i, d, kind) for i, d in enumerate(datas)]
         last = self.log.append(entries)
+        size = sum(len(d) for d in datas)
+        if size:
+            self._uncommitted.append((last, size))
+            self._uncommitted_bytes += size
         self._maybe_commit()  # a one-node cluster commits at once
         for p in self.prs:
-            self._send_append(p)
+            self._send_append(p, send_if_empty=False)
         return last
 
-    def _send_append(self, to: int) -> None:
+    def _entries_from(self, index: int) -> list[Entry]:
+        """Entries for one append from ``index``: at most max_entries_per_msg and
+        max_msg_bytes of payload, but at least one entry if there is one."""
+        entries = self.log.slice(index, index + self.config.max_entries_per_msg)
+        budget = self.config.max_msg_bytes
+        for k, e in enumerate(entries):
+            budget -= len(e.data)
+            if budget < 0 and k > 0:
+                return entries[:k]
+        return entries
+
+    def _send_append(self, to: int, send_if_empty: bool = True) -> bool:
+        """Send ``to`` the entries it lacks (or, with ``send_if_empty``, an append without
+        entries: a probe); False if its window or probe holds it back, or nothing was sent."""
         pr = self.prs[to]
-        if pr.probe and pr.paused:
-            return
+        if not pr.can_send():
+            return False
+        entries = self._entries_from(pr.next)
+        if not entries and not send_if_empty:
+            return False
         prev = pr.next - 1
-        entries = self.log.slice(pr.next, pr.next + self.config.max_entries_per_msg)
         self._send(
             Message(
                 MsgType.APP,
@@ -298,10 +342,13 @@ class RaftNode:
                 commit=self.log.committed,
             )
         )
+        pr.silent, pr.flowing = 0, bool(entries) and not pr.probe
         if pr.probe:
             pr.paused = True
         elif entries:
             pr.next = entries[-1].index + 1
+            pr.inflights.add(pr.next - 1, sum(len(e.data) for e in entries))
+        return True
 
     def _maybe_commit(self, acked: int | None = None) -> bool:
         """Advance the commit index to the highest index a quorum holds, if it is of the
@@ -314,6 +361,8 @@ class RaftNode:
         # The commit rule: only an entry of the current term commits by counting replicas.
         if n > self.log.committed and self.log.term(n) == self.term:
             self.log.commit_to(n)
+            while self._uncommitted and self._uncommitted[0][0] <= n:
+                self._uncommitted_bytes -= self._uncommitted.popleft()[1]
             return True
         return False
 
@@ -324,31 +373,35 @@ class RaftNode:
         if m.type == MsgType.APP_RESP:
             pr.recent_active = True
             if m.reject:
-                if m.index < pr.match:
-                    return  # stale
-                pr.next = max(pr.match + 1, min(m.reject_hint, m.index))
-                pr.probe, pr.paused = True, False
-                self._send_append(m.frm)
+                if pr.maybe_decrease(m.index, m.reject_hint):  # else stale: nothing changes
+                    self._send_append(m.frm)
                 return
-            pr.paused = False
-            if m.index > pr.match:
-                pr.match = m.index
-                pr.probe = False
-            pr.next = max(pr.next, pr.match + 1)
-            if self._maybe_commit(pr.match):
-                for p in self.prs:
-                    self._send_append(p)
-            elif pr.match < self.log.last_index():
-                self._send_append(m.frm)
+            if pr.maybe_update(m.index) or (pr.probe and m.index == pr.match):
+                if pr.probe:
+                    pr.become_replicate()
+                else:
+                    pr.inflights.free_le(m.index)
+                # the new commit index, if any, travels with the next append or heartbeat
+                self._maybe_commit(pr.match)
+                while self._send_append(m.frm, send_if_empty=False):
+                    pass
         elif m.type == MsgType.HEARTBEAT_RESP:
             pr.recent_active = True
             pr.paused = False
-            if pr.match < self.log.last_index():
+            if not pr.probe and pr.inflights.full():
+                pr.inflights.free_first()
+            # A follower that lacks entries after a heartbeat lost an append or its answer,
+            # unless an append went out after the heartbeat (``flowing``): its answer will tell.
+            if pr.match < self.log.last_index() and (pr.probe or not pr.flowing):
                 self._send_append(m.frm)
 
     def _step_prop(self, m: Message) -> None:
         datas = [e.data for e in m.entries]
         if self.role == Role.LEADER:
+            try:
+                self._check_uncommitted(sum(len(d) for d in datas))
+            except ProposalDropped:
+                return  # dropped, as etcd does: the proposer learns it did not commit
             self._append_and_broadcast(datas)
         elif self.role == Role.FOLLOWER and self.lead is not None and self.config.forward_proposals:
             self._send(Message(MsgType.PROP, self.id, self.lead, 0, entries=m.entries))

@@ -47,6 +47,7 @@ class MissionLog:
     latency_ms: np.ndarray  # (S,) step start to first apply of its record
     raft_messages: np.ndarray  # (S,) Raft messages sent during the step
     report_messages: np.ndarray  # (S,) reports sent during the step
+    refused_proposals: int = 0  # records a leader refused (its cap on uncommitted bytes)
     node_records: dict[int, list[tuple[int, str]]] = field(default_factory=dict)  # node -> (step, digest)
     events: list[tuple[float, str]] = field(default_factory=list)
     ins_sigma_window: float = 0.0
@@ -311,6 +312,7 @@ class Mission:
                 progress(1)
         c.run(dt_ms)
         self.log.raft_messages[steps] = sum(c.sent.values()) - raft0
+        self.log.refused_proposals = c.refused  # each such step is skipped unless proposed again
         c.run(2 * sc.protocol.deadline_ms + 500)  # let the last records commit (not counted)
         return self._finish()
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import heapq
 import random
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from swarmraft.raft import (
@@ -33,6 +33,7 @@ from swarmraft.raft import (
     MemoryStorage,
     Message,
     NotLeader,
+    ProposalDropped,
     RaftConfig,
     RaftNode,
     Status,
@@ -75,7 +76,8 @@ class Cluster:
 
     ``tick_ms`` 10 with ``election_tick`` 15 and ``heartbeat_tick`` 5 gives 150-300 ms
     election timeouts and 50 ms heartbeats (the Raft paper; docs/protocol.md); the default network
-    has 1-3 ms one-way delay and no loss.
+    has 1-3 ms one-way delay and no loss. ``raft_options`` sets further `RaftConfig` fields
+    (flow control limits) on every node.
     """
 
     def __init__(
@@ -90,6 +92,7 @@ class Cluster:
         check_quorum: bool = True,
         check_invariants: bool = True,
         on_apply: Callable[[int, Entry], None] | None = None,
+        raft_options: Mapping[str, Any] | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("Cluster: n must be >= 1")
@@ -108,6 +111,7 @@ class Cluster:
                 heartbeat_tick=heartbeat_tick,
                 pre_vote=pre_vote,
                 check_quorum=check_quorum,
+                **(raft_options or {}),
             )
             for i in self.ids
         }
@@ -119,6 +123,7 @@ class Cluster:
         self.checker = InvariantChecker(seed) if check_invariants else None
         self.sent: Counter[str] = Counter()
         self.app_sent = 0
+        self.refused = 0  # proposals a leader refused (ProposalDropped)
         self.delivered: Counter[str] = Counter()
         self.on_apply = on_apply
         for i in self.ids:
@@ -309,7 +314,9 @@ class Cluster:
     def propose(self, data: bytes, via: int | None = None) -> bool:
         """Propose ``data``. With ``via`` None, at the current leader; otherwise at node
         ``via`` (a follower forwards it to the leader it knows). Returns True if a leader
-        accepted it into its log now (a forwarded proposal returns False: it is in flight)."""
+        accepted it into its log now (a forwarded proposal returns False: it is in flight; a
+        refused one, beyond the leader's cap on uncommitted bytes, returns False and is counted
+        in ``refused``)."""
         target = self.leader() if via is None else via
         if target is None:
             return False
@@ -320,6 +327,9 @@ class Cluster:
         try:
             index = node.propose(data)
         except NotLeader:
+            return False
+        except ProposalDropped:
+            self.refused += 1
             return False
         self._process(target)
         return index is not None

@@ -195,6 +195,26 @@ def test_a_drone_keeps_only_its_newest_records_and_the_mission_log_every_step():
     assert np.isfinite(log.verified[5:RECORDS_KEPT]).any(axis=(1, 2)).all()
 
 
+def test_a_record_the_data_did_not_settle_is_not_carried_on():
+    # an alarm or unidentifiable record's flags are what the data could not decide: the next
+    # verification takes its prior and latched flags from the newest settled record instead
+    d = SwarmDrone(0, ProtocolConfig(n=4), Keyring.generate(4, np.random.default_rng(0)))
+    z = np.zeros((4, 3))
+
+    def rec(k, status, flagged):
+        faulty = np.isin(np.arange(4), flagged)
+        return StepRecord(k, 1, z + k, faulty, np.zeros(4, bool), status, "joint", str(k)).encode()
+
+    d.apply(rec(5, "ok", [1]))
+    d.apply(rec(6, "alarm", [2, 3]))
+    assert d.trusted_record(7).step == 5 and d.trusted_record(7).faulty.tolist() == [0, 1, 0, 0]
+    d.apply(rec(7, "unidentifiable", [0]))
+    assert d.trusted_record(8).step == 5
+    assert d.trusted_record(9) is None  # 4 steps back: too old to be a prior
+    d.apply(rec(9, "degenerate", [3]))
+    assert d.trusted_record(10).step == 9  # degenerate: a position undetermined, flags settled
+
+
 def test_reports_are_signed():
     keys = Keyring.generate(3, np.random.default_rng(1))
     leader = SwarmDrone(0, ProtocolConfig(n=3), keys)

@@ -28,6 +28,10 @@ from swarmraft.protocol.records import Report, StepRecord, reports_digest
 from swarmraft.protocol.signing import Keyring
 
 MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
+#: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
+UNSETTLED = frozenset({"alarm", "unidentifiable"})
+#: how far back the leader looks for a record to carry on (steps)
+PRIOR_STEPS = 3
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,15 @@ class SwarmDrone:
         expected = [d for d, k in self.last_seen.items() if k >= step - recent]
         return len(got) == self.config.n or (bool(expected) and all(d in got for d in expected))
 
+    def trusted_record(self, step: int) -> StepRecord | None:
+        """The newest record at most PRIOR_STEPS before ``step`` whose verdict can be carried
+        on (status neither alarm nor unidentifiable), or None."""
+        for k in range(step - 1, max(step - 1 - PRIOR_STEPS, -1), -1):
+            rec = self.state.records.get(k)
+            if rec is not None and rec.status not in UNSETTLED:
+                return rec
+        return None
+
     def verify_step(self, step: int, term: int) -> StepRecord | None:
         """The leader's verdict for a step from the reports it holds (None if it has none,
         or the step is already decided)."""
@@ -140,8 +153,10 @@ class SwarmDrone:
         np.fill_diagonal(ranges, 0.0)
         idx = np.flatnonzero(present)
         # The last record's positions are a prior (0.1 s old): they resolve the mirror of three
-        # anchors, and stand in for a flagged drone whose geometry is insufficient.
-        last = self.state.records.get(self.state.last_step)
+        # anchors, and stand in for a flagged drone whose geometry is insufficient. A record
+        # whose verdict is alarm or unidentifiable is not a prior: its flags and positions are
+        # what the data could not settle, and carrying them on locks the wrong partition in.
+        last = self.trusted_record(step)
         prior = last.positions if last is not None else np.full((n, 3), np.nan)
         sub = SnapshotBatch(
             reported[idx][None],

@@ -1,0 +1,172 @@
+"""The live view's options for `mission` and `launch` (--live, --record, --speed, --port,
+--linger), the session that runs the viewer server and the stream beside a mission, and
+`swarmraft view FILE.rrd` (docs/live.md)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from swarmraft.cli.app import console, main
+
+
+class RrdFile(click.ParamType):
+    """An .rrd file to write: a name ending in .rrd, not a folder, in a folder that exists."""
+
+    name = "file.rrd"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
+        path = Path(value)
+        if path.suffix.lower() != ".rrd":
+            self.fail(f"{value}: give a file name ending in .rrd", param, ctx)
+        if path.is_dir():
+            self.fail(f"{value} is a folder", param, ctx)
+        if not path.parent.is_dir():
+            self.fail(f"no folder {path.parent}", param, ctx)
+        return path
+
+
+def live_options(f: Callable) -> Callable:
+    """--live, --record, --speed, --port and --linger, in that order on the help page."""
+    options = [
+        click.option(
+            "--live",
+            is_flag=True,
+            help="serve rerun's web viewer on 127.0.0.1 (URL printed) and stream the swarm to it "
+            "while it flies (needs the live extra: pip install 'swarmraft[live]'; docs/live.md)",
+        ),
+        click.option(
+            "--record",
+            "record_to",
+            type=RrdFile(),
+            help="write the same stream to FILE.rrd (open it with `swarmraft view FILE.rrd`)",
+        ),
+        click.option(
+            "--port",
+            type=click.IntRange(1, 65535),
+            default=None,
+            help="with --live: the web viewer's port on 127.0.0.1 (its stream takes a free port) "
+            "[default: 9090]",
+        ),
+        click.option(
+            "--linger",
+            type=click.FloatRange(min=0),
+            default=None,
+            help="with --live: keep the viewer up this many seconds after the mission "
+            "[default: until Ctrl-C]",
+        ),
+    ]
+    for option in reversed(options):
+        f = option(f)
+    return f
+
+
+SPEED = click.option(
+    "--speed",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="with --live: simulated seconds per wall-clock second [default: 1, real time]",
+)
+
+
+def check_live_options(live: bool, speed: float | None, linger: float | None, port: int | None) -> None:
+    """--speed, --linger and --port mean something with --live only."""
+    for name, value in (("--speed", speed), ("--linger", linger), ("--port", port)):
+        if value is not None and not live:
+            raise click.BadParameter("only with --live", param_hint=name)
+
+
+@dataclass
+class LiveSession:
+    """The viewer server (with --live), the recording stream (to it and/or an .rrd file) and
+    the `StepStream` that logs the mission's steps; `close` ends the stream and, with --live,
+    keeps the viewer up for ``linger`` seconds (None: until Ctrl-C)."""
+
+    name: str
+    live: bool
+    record_to: Path | None
+    port: int | None
+    linger: float | None
+    with_truth: bool = True
+
+    def start(self) -> None:
+        from swarmraft.viz import live as vl
+
+        rr = vl.require_rerun("--live" if self.live else "--record")
+        self.server = None
+        if self.live:
+            self.server = vl.ViewerServer(port=self.port or vl.DEFAULT_PORT)
+            self.server.start()
+            console.print(f"live view: {self.server.url}", soft_wrap=True)
+        self.rec = vl.open_stream(rr, self.name, self.server, self.record_to)
+        self.stream = vl.StepStream(self.rec, with_truth=self.with_truth)
+        self.t0 = time.monotonic()
+        self.t_last = self.t0
+
+    def rate_line(self, dt_s: float) -> str:
+        """Steps logged per wall-clock second against the mission's step rate."""
+        steps = self.stream.steps_logged
+        took = max(self.t_last - self.t0, 1e-9)
+        return (
+            f"stream: {steps} steps logged in {took:.1f} s ({steps / took:.1f} per s; "
+            f"the mission's step rate is {1 / dt_s:g} per s)"
+        )
+
+    def static(self, log: Any) -> None:
+        from swarmraft.viz.live import log_static
+
+        log_static(self.rec, log)
+
+    def close(self, final_log: Any = None, errors: Any = None) -> None:
+        if final_log is not None:
+            self.stream.finish(final_log, errors)
+        self.rec.flush()
+        self.rec.disconnect()
+        if self.record_to is not None:
+            console.print(f"wrote {self.record_to}", soft_wrap=True)
+        if self.server is None:
+            return
+        try:
+            if self.linger is None:
+                console.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
+                self.server.wait()
+            else:
+                time.sleep(self.linger)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.stop()
+
+    def stop(self) -> None:
+        if getattr(self, "server", None) is not None:
+            self.server.stop()
+
+
+@main.command("view")
+@click.argument("rrd", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--port", type=click.IntRange(1, 65535), default=9090, show_default=True, help="the web viewer's port"
+)
+def view(rrd: Path, port: int) -> None:
+    """Open a recording (FILE.rrd, from --record or `swarmraft record DIR`) in rerun's web
+    viewer, served on 127.0.0.1 (URL printed) until Ctrl-C."""
+    from swarmraft.viz import live as vl
+
+    if not rrd.is_file():
+        raise click.BadParameter(f"no file {rrd}", param_hint="RRD")
+    if rrd.suffix.lower() != ".rrd":
+        raise click.BadParameter(f"{rrd} is not an .rrd recording", param_hint="RRD")
+    vl.require_rerun("swarmraft view")
+    server = vl.ViewerServer(port=port, rrd=rrd)
+    server.start()
+    console.print(f"viewing {rrd}: {server.url}", soft_wrap=True)
+    console.print("Ctrl-C to stop")
+    try:
+        server.wait()
+    except KeyboardInterrupt:
+        pass

@@ -93,6 +93,7 @@ class LiveSession:
     port: int | None
     linger: float | None
     with_truth: bool = True
+    say: Any = console  # a rich Console: stderr when stdout carries JSON
 
     def start(self) -> None:
         from swarmraft.viz import live as vl
@@ -102,19 +103,30 @@ class LiveSession:
         if self.live:
             self.server = vl.ViewerServer(port=self.port or vl.DEFAULT_PORT)
             self.server.start()
-            console.print(f"live view: {self.server.url}", soft_wrap=True)
+            self.say.print(f"live view: {self.server.url}", soft_wrap=True)
         self.rec = vl.open_stream(rr, self.name, self.server, self.record_to)
         self.stream = vl.StepStream(self.rec, with_truth=self.with_truth)
         self.t0 = time.monotonic()
         self.t_last = self.t0
 
+    def update(self, log: Any, k: int) -> None:
+        """Log the steps of ``log`` known up to k (`StepStream.update`), timing the stream."""
+        first = not self.stream.logged
+        self.stream.update(log, k)
+        now = time.monotonic()
+        if first and self.stream.logged:
+            self.t0 = now
+        self.t_last = now
+
     def rate_line(self, dt_s: float) -> str:
-        """Steps logged per wall-clock second against the mission's step rate."""
-        steps = self.stream.steps_logged
+        """Steps logged per wall-clock second, from the first to the last, against the
+        mission's step rate (re-logged late records not counted)."""
+        steps = len(self.stream.logged)
         took = max(self.t_last - self.t0, 1e-9)
+        rate = (steps - 1) / took if steps > 1 else 0.0
         return (
-            f"stream: {steps} steps logged in {took:.1f} s ({steps / took:.1f} per s; "
-            f"the mission's step rate is {1 / dt_s:g} per s)"
+            f"stream: {steps} steps logged live in {took:.1f} s ({rate:.2f} steps/s; "
+            f"the mission's step rate is {1 / dt_s:g} steps/s)"
         )
 
     def static(self, log: Any) -> None:
@@ -128,12 +140,12 @@ class LiveSession:
         self.rec.flush()
         self.rec.disconnect()
         if self.record_to is not None:
-            console.print(f"wrote {self.record_to}", soft_wrap=True)
+            self.say.print(f"wrote {self.record_to}", soft_wrap=True)
         if self.server is None:
             return
         try:
             if self.linger is None:
-                console.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
+                self.say.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
                 self.server.wait()
             else:
                 time.sleep(self.linger)
@@ -170,3 +182,33 @@ def view(rrd: Path, port: int) -> None:
         server.wait()
     except KeyboardInterrupt:
         pass
+
+
+class FollowLaunch:
+    """A thread that, every step interval while a networked swarm runs, reads what its drones
+    have written (`net.results.LaunchTail`) and logs the steps that ended ``lag_steps`` ago
+    (a record applied later still comes: `StepStream` logs it again)."""
+
+    def __init__(self, session: LiveSession, tail: Any, start_unix_s: float, dt_s: float, lag_steps: int = 3):
+        import threading
+
+        self.session, self.tail = session, tail
+        self.start_unix_s, self.dt_s, self.lag_steps = start_unix_s, dt_s, lag_steps
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="swarmraft-live", daemon=True)
+
+    def start(self) -> None:
+        self.session.static(self.tail.log)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.done.wait(self.dt_s):
+            k = int((time.time() - self.start_unix_s) / self.dt_s) - self.lag_steps
+            if k < 0:
+                continue
+            self.tail.poll()
+            self.session.update(self.tail.log, k)
+
+    def stop(self) -> None:
+        self.done.set()
+        self.thread.join()

@@ -243,6 +243,7 @@ def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, 
     (docs/live.md). Neither changes the mission's results."""
     from swarmraft.experiments.mission import load_scenario, run_and_write
 
+    check_live_options(live, speed, linger, port)
     sc = load_scenario(scenario_file, seed=seed)
     if detector:
         from swarmraft.sim.scenario import with_detector
@@ -250,18 +251,17 @@ def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, 
         sc = with_detector(sc, detector)
     out = out or Path("results") / sc.name
     say = err_console if as_json else console
-    say.print(
-        f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}",
-        soft_wrap=True,
-    )
-    check_live_options(live, speed, linger, port)
     session = on_step = None
     if live or record_to:
-        session = LiveSession(sc.name, live, record_to, port, linger)
+        session = LiveSession(sc.name, live, record_to, port, linger, say=say)
         on_step = _live_hook(session, sc.dt_s, (speed or 1.0) if live else None)
     try:
         if session is not None:
-            session.start()
+            session.start()  # a missing extra or a port in use stops here, before the mission
+        say.print(
+            f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}",
+            soft_wrap=True,
+        )
         prog, start = progress_bar("mission", "steps")
         with prog:
             result = run_and_write(sc, out, start(sc.steps + 1, 0), on_step)
@@ -283,8 +283,6 @@ def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, 
 def _live_hook(session: LiveSession, dt_s: float, speed: float | None):  # noqa: ANN202
     """The simulator's per-step hook: pace to ``speed`` (None: as fast as it runs) and log
     the steps known so far."""
-    import time
-
     from swarmraft.viz.live import Pacer
 
     pacer = Pacer(dt_s, speed) if speed is not None else None
@@ -294,7 +292,6 @@ def _live_hook(session: LiveSession, dt_s: float, speed: float | None):  # noqa:
             session.static(log)
         if pacer is not None:
             pacer.wait(k)
-        session.stream.update(log, k)
-        session.t_last = time.monotonic()
+        session.update(log, k)
 
     return on_step

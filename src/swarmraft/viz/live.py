@@ -148,7 +148,7 @@ def _error(a: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
     """(level, text) of step k: the mission's events since step k-1 (crashes, partitions,
     loss), a leader change, drones flagged (and recovered to a verified position) or cleared,
-    a skipped step."""
+    the first of a run of skipped steps and the first record after one."""
     out: list[tuple[str, str]] = []
     t, dt = float(log.t[k]), log.scenario.dt_s
     for te, what in log.events:
@@ -158,8 +158,11 @@ def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
         lead = int(log.leader[k])
         out.append(("INFO", f"leader: drone {lead} (term {log.term[k]})" if lead else "no leader"))
     if not log.committed[k]:
-        out.append(("WARN", f"step {k} skipped (no record)"))
+        if k == 0 or log.committed[k - 1]:
+            out.append(("WARN", f"steps skipped from step {k} (no record)"))
         return out
+    if k and not log.committed[k - 1]:
+        out.append(("INFO", f"records again from step {k}"))
     before = log.faulty[k - 1] & log.committed[k - 1] if k else np.zeros_like(log.faulty[k])
     for i in np.flatnonzero(log.faulty[k] & ~before):
         v, r = log.verified[k, i], log.reported[k, i]

@@ -24,3 +24,24 @@ def recording_rows(path: Path) -> dict[str, list[tuple[float, dict[str, Any]]]]:
     for rows in out.values():
         rows.sort(key=lambda tr: tr[0])
     return dict(out)
+
+
+def assert_swarm_recorded(path: Path, drones: int, min_move_m: float = 5.0) -> dict:
+    """The recording holds every drone (labels 1..n on the verified positions), positions that
+    change between its first and last full step (each drone moves more than ``min_move_m``),
+    and a leader change (two leaders over the run). The rows, for more checks."""
+    import numpy as np
+
+    rows = recording_rows(path)
+    labels: set[str] = set()
+    for _, r in rows["/swarm/verified"]:
+        labels |= {lab.rstrip("*") for lab in r["Points3D:labels"] or []}
+    assert labels == {str(i) for i in range(1, drones + 1)}, f"drones in the recording: {sorted(labels)}"
+    full = [np.array(r["Points3D:positions"]) for _, r in rows["/swarm/verified"]]
+    full = [p for p in full if len(p) == drones]
+    assert len(full) >= 2, "fewer than two steps hold every drone"
+    moved = np.linalg.norm(full[-1] - full[0], axis=1)
+    assert (moved > min_move_m).all(), f"drones that did not move: {np.flatnonzero(moved <= min_move_m) + 1}"
+    leaders = {r["Scalars:scalars"][0] for _, r in rows.get("/raft", []) if r.get("Scalars:scalars")}
+    assert len(leaders - {0.0}) >= 2, f"leaders in the recording: {sorted(leaders)}"
+    return rows

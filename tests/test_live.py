@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from rrd import recording_rows
+from rrd import assert_swarm_recorded, recording_rows
 from swarmraft.cli import main
 from swarmraft.experiments.mission import load_scenario, run_and_write
 from swarmraft.net.results import LaunchTail, launch_log
@@ -87,21 +87,9 @@ def test_a_mission_is_the_same_with_and_without_the_step_hook(tmp_path):
 
 
 def test_the_recording_holds_every_drone_moving_the_flags_and_the_leader_change(recorded):
-    rows = recording_rows(recorded / "live.rrd")
     summary = json.loads((recorded / "out" / "summary.json").read_text())
-    verified = rows["/swarm/verified"]
-    assert len(verified) >= summary["steps"]
-    labels = set()
-    for _, r in verified:
-        labels |= {lab.rstrip("*") for lab in r["Points3D:labels"] or []}
-    assert labels == {str(i) for i in range(1, 6)}
-    full = [
-        (t, np.array(r["Points3D:positions"])) for t, r in verified if len(r["Points3D:positions"] or []) == 5
-    ]
-    moved = np.linalg.norm(full[-1][1] - full[0][1], axis=1)
-    assert (moved > 5).all(), moved  # every drone flies (7 m/s for 6 s)
-    leaders = [r["Scalars:scalars"][0] for _, r in rows["/raft"] if r.get("Scalars:scalars")]
-    assert len({v for v in leaders if v > 0}) >= 2  # a leader, then another after the crash
+    rows = assert_swarm_recorded(recorded / "live.rrd", drones=5)
+    assert len(rows["/swarm/verified"]) >= summary["steps"]
     texts = [r["TextLog:text"][0] for _, r in rows["/events"]]
     assert any(t.startswith("leader ") and "crashed" in t for t in texts)
     assert any(t.startswith("drone 2 flagged") for t in texts)

@@ -94,6 +94,7 @@ class LiveSession:
     linger: float | None
     with_truth: bool = True
     say: Any = console  # a rich Console: stderr when stdout carries JSON
+    pacer: Any = None  # the simulator's `viz.live.Pacer`, when it paces the mission
 
     def start(self) -> None:
         from swarmraft.viz import live as vl
@@ -120,19 +121,17 @@ class LiveSession:
 
     def rate_line(self, dt_s: float) -> str:
         """Steps logged per wall-clock second, from the first to the last, against the
-        mission's step rate (re-logged late records not counted)."""
-        steps = len(self.stream.logged)
+        mission's step rate; frames (every step logged, and logged again when its record came
+        late) per second; and, when paced, how far the mission fell behind its pace."""
+        steps, frames = len(self.stream.logged), self.stream.steps_logged
         took = max(self.t_last - self.t0, 1e-9)
         rate = (steps - 1) / took if steps > 1 else 0.0
+        behind = "" if self.pacer is None else f"; at most {self.pacer.behind_s:.2f} s behind its pace"
         return (
-            f"stream: {steps} steps logged live in {took:.1f} s ({rate:.2f} steps/s; "
-            f"the mission's step rate is {1 / dt_s:g} steps/s)"
+            f"stream: {steps} steps in {took:.1f} s: {rate:.2f} steps/s against the mission's "
+            f"{1 / dt_s:g}, {frames / took:.2f} frames/s ({frames - steps} late records logged again)"
+            + behind
         )
-
-    def static(self, log: Any) -> None:
-        from swarmraft.viz.live import log_static
-
-        log_static(self.rec, log)
 
     def close(self, final_log: Any = None, errors: Any = None) -> None:
         if final_log is not None:

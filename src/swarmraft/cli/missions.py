@@ -286,6 +286,7 @@ def _live_hook(session: LiveSession, dt_s: float, speed: float | None):  # noqa:
     from swarmraft.viz.live import Pacer
 
     pacer = Pacer(dt_s, speed) if speed is not None else None
+    session.pacer = pacer
 
     def on_step(log, k: int) -> None:  # noqa: ANN001
         if k == 0:

@@ -53,15 +53,10 @@ LEADER_COLOUR = (241, 196, 15)
 PROTECTION_COLOUR = (175, 190, 205)
 
 LEGEND = """\
-**SwarmRaft live view**
-
-- **verified** positions (large points, labelled with the drone id): blue honest,
-  red flagged, orange jammed (GNSS outage), grey missing
-- **reported** positions (small points), same colours
-- **truth** (dark grey, smallest)
-- **red arrows**: a flagged drone's report to its verified position
-- **light wireframes**: protection levels (hpl, hpl, vpl) around verified positions
-- **gold**: the leader
+**verified** (large, labelled): blue honest, red flagged, orange jammed (GNSS outage), grey
+missing; **reported** (small), same colours; **truth** dark grey; **red arrows** from a flagged
+drone's report to its verified position; **wireframes** protection levels (hpl, hpl, vpl);
+**gold** the leader.
 """
 
 
@@ -106,7 +101,7 @@ def blueprint(rr: Any) -> Any:
             rrb.Vertical(
                 rrb.Spatial3DView(origin="/swarm", name="swarm (ENU, m)"),
                 rrb.TextDocumentView(origin="/legend", name="legend"),
-                row_shares=[4, 1],
+                row_shares=[6, 1],
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="/errors/verified", name="error of verified positions, m"),
@@ -119,7 +114,7 @@ def blueprint(rr: Any) -> Any:
         ),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline="time", play_state="following"),
     )
 
 

@@ -133,6 +133,11 @@ class LiveSession:
             + behind
         )
 
+    def static(self, log: Any) -> None:
+        from swarmraft.viz.live import log_static
+
+        log_static(self.rec, log)
+
     def close(self, final_log: Any = None, errors: Any = None) -> None:
         if final_log is not None:
             self.stream.finish(final_log, errors)

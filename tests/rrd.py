@@ -29,7 +29,8 @@ def recording_rows(path: Path) -> dict[str, list[tuple[float, dict[str, Any]]]]:
 def assert_swarm_recorded(path: Path, drones: int, min_move_m: float = 5.0) -> dict:
     """The recording holds every drone (labels 1..n on the verified positions), positions that
     change between its first and last full step (each drone moves more than ``min_move_m``),
-    and a leader change (two leaders over the run). The rows, for more checks."""
+    and a leader change (two leaders in the leader series, two "leader: drone N" events).
+    The rows, for more checks."""
     import numpy as np
 
     rows = recording_rows(path)
@@ -44,4 +45,10 @@ def assert_swarm_recorded(path: Path, drones: int, min_move_m: float = 5.0) -> d
     assert (moved > min_move_m).all(), f"drones that did not move: {np.flatnonzero(moved <= min_move_m) + 1}"
     leaders = {r["Scalars:scalars"][0] for _, r in rows.get("/raft", []) if r.get("Scalars:scalars")}
     assert len(leaders - {0.0}) >= 2, f"leaders in the recording: {sorted(leaders)}"
+    told = {
+        r["TextLog:text"][0]
+        for _, r in rows.get("/events", [])
+        if r["TextLog:text"][0].startswith("leader: ")
+    }
+    assert len(told) >= 2, f"leader changes in the event log: {sorted(told)}"
     return rows

@@ -21,6 +21,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -315,6 +316,29 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+def rerun_command() -> list[str]:
+    """rerun's own binary (the wheel's ``rerun_cli/rerun``), so the server is one process that
+    stops when told (``python -m rerun`` is a wrapper that would leave the binary running)."""
+    try:
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).parent / "rerun"
+        if binary.is_file() and os.access(binary, os.X_OK):
+            return [str(binary)]
+    except ImportError:
+        pass
+    return [sys.executable, "-m", "rerun"]
+
+
+def _die_with_parent() -> None:
+    """In the server's process before it runs: on Linux, SIGTERM it when its parent dies (a
+    killed mission leaves no server behind)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 @dataclass
 class ViewerServer:
     """rerun's gRPC server and web viewer as a child process on 127.0.0.1: the web page at
@@ -330,7 +354,7 @@ class ViewerServer:
     def start(self, timeout_s: float = 30.0) -> None:
         check_port_free(self.port)
         self.grpc_port = self.grpc_port or free_tcp_port()
-        cmd = [sys.executable, "-m", "rerun"]
+        cmd = [*rerun_command()]
         cmd += [str(self.rrd)] if self.rrd is not None else []
         cmd += [
             "--serve-web",
@@ -343,22 +367,25 @@ class ViewerServer:
             "--server-memory-limit",
             self.memory_limit,
         ]
-        env = {**os.environ, "RERUN_ANALYTICS": "0"}
+        self._log = tempfile.TemporaryFile()  # its messages, for the error line if it stops
         self.proc = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env
+            cmd,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent,  # noqa: PLW1509 (no threads run Python here yet)
         )
         end = time.monotonic() + timeout_s
         while not (_listening(self.port) and _listening(self.grpc_port)):
             if self.proc.poll() is not None:
-                err = (self.proc.stderr.read() if self.proc.stderr else b"").decode(errors="replace")
+                self._log.seek(0)
+                err = self._log.read().decode(errors="replace")
                 last = [ln for ln in err.splitlines() if ln.strip()][-1:] or ["no message"]
                 raise RuntimeError(f"the rerun viewer server stopped: {last[0]}")
             if time.monotonic() > end:
                 self.stop()
                 raise RuntimeError(f"the rerun viewer server did not listen within {timeout_s:g} s")
             time.sleep(0.1)
-        if self.proc.stderr is not None:
-            self.proc.stderr.close()
 
     @property
     def grpc_url(self) -> str:

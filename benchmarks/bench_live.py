@@ -8,7 +8,8 @@ process, sampled every second over the run.
     python benchmarks/bench_live.py --minutes 10  # the memory-bound check
 
 No browser is connected (a browser's viewer is the user's own process, with its own memory
-limit); the server's buffer is bounded by SERVER_MEMORY_LIMIT (docs/live.md).
+limit); the server's buffer is bounded by SERVER_MEMORY_LIMIT (docs/live.md). Then the cost
+of logging one step: the mission's folder replayed to an .rrd (`swarmraft record DIR`).
 """
 
 from __future__ import annotations
@@ -85,6 +86,7 @@ def main() -> None:
             time.sleep(1.0)
         proc.wait()
         time.sleep(0.5)
+        cost = log_cost(Path(tmp) / "out", Path(tmp) / "cost.rrd") if proc.returncode == 0 else None
     rate = next((ln.strip() for ln in lines if ln.startswith("stream:")), None)
     if proc.returncode != 0 or rate is None:
         print("".join(lines[-20:]))
@@ -103,6 +105,19 @@ def main() -> None:
         )
     if own:
         print(f"mission process RSS: max {max(m for _, m in own):.0f} MB, at the end {own[-1][1]:.0f} MB")
+    if cost:
+        print(f"logging one step of {args.drones} drones: {cost[0]:.1f} ms CPU, {cost[1]:.1f} ms wall")
+
+
+def log_cost(folder: Path, rrd: Path) -> tuple[float, float]:
+    """CPU and wall ms per step of logging the mission's folder to an .rrd (`record DIR`)."""
+    from swarmraft.experiments.mission_folder import read_mission
+    from swarmraft.viz.live import record_mission
+
+    m = read_mission(folder)
+    c0, t0 = time.process_time(), time.perf_counter()
+    steps = record_mission(m.log, m.errors, rrd)
+    return (time.process_time() - c0) / steps * 1000, (time.perf_counter() - t0) / steps * 1000
 
 
 if __name__ == "__main__":

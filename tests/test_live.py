@@ -244,3 +244,32 @@ def test_following_a_networked_runs_files_as_they_grow_gives_the_log_launch_writ
     ):
         np.testing.assert_array_equal(getattr(tail.log, name), getattr(final, name), err_msg=name)
     np.testing.assert_allclose(tail.log.latency_ms, final.latency_ms)
+
+
+def test_a_late_record_is_logged_again_and_never_told_as_a_skipped_step(recorded, tmp_path):
+    import copy
+
+    import rerun as rr
+
+    from swarmraft.experiments.mission_folder import read_mission
+    from swarmraft.viz.live import StepStream, log_static, new_stream
+
+    final = read_mission(recorded / "out").log
+    assert final.committed[10:20].all()
+    live = copy.deepcopy(final)
+    live.committed[12] = False  # step 12's record has not arrived yet
+    rec = new_stream(rr, "late")
+    rec.save(str(tmp_path / "late.rrd"))
+    log_static(rec, live)
+    stream = StepStream(rec, settle_steps=5)
+    stream.update(live, 13)  # 12 is logged without a record; its events wait for it
+    live.committed[12] = True  # the record arrives
+    stream.update(live, 15)
+    stream.finish(final)
+    rec.flush()
+    rec.disconnect()
+    rows = recording_rows(tmp_path / "late.rrd")
+    texts = [r["TextLog:text"][0] for _, r in rows["/events"]]
+    assert not any("skipped from step 12" in t for t in texts)
+    at_12 = [r for t, r in rows["/swarm/verified"] if abs(t - 1.2) < 1e-9]
+    assert [len(r["Points3D:positions"]) for r in at_12] == [0, 5]  # logged again with its record

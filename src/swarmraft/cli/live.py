@@ -93,6 +93,7 @@ class LiveSession:
     port: int | None
     linger: float | None
     with_truth: bool = True
+    settle_steps: int = 2  # events of a step without a record wait this many steps for it
     say: Any = console  # a rich Console: stderr when stdout carries JSON
     pacer: Any = None  # the simulator's `viz.live.Pacer`, when it paces the mission
 
@@ -106,7 +107,7 @@ class LiveSession:
             self.server.start()
             self.say.print(f"live view: {self.server.url}", soft_wrap=True)
         self.rec = vl.open_stream(rr, self.name, self.server, self.record_to)
-        self.stream = vl.StepStream(self.rec, with_truth=self.with_truth)
+        self.stream = vl.StepStream(self.rec, with_truth=self.with_truth, settle_steps=self.settle_steps)
         self.t0 = time.monotonic()
         self.t_last = self.t0
 

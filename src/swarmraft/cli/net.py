@@ -185,7 +185,8 @@ def launch(
     check_live_options(live, None, linger, port)
     session = follow = world = None
     if live or record_to:
-        session = LiveSession(sc.name, live, record_to, port, linger)
+        # the drones' records can come a second or more after their step on a loaded machine
+        session = LiveSession(sc.name, live, record_to, port, linger, settle_steps=int(round(3 / sc.dt_s)))
         session.start()
         world = ScenarioWorld.build(sc)
     try:

@@ -143,16 +143,17 @@ def _error(a: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
     """(level, text) of step k: the mission's events since step k-1 (crashes, partitions,
-    loss), a leader change, drones flagged (and recovered to a verified position) or cleared,
-    the first of a run of skipped steps and the first record after one."""
+    loss), a new leader (of a record, against the previous record's), drones flagged (and
+    recovered to a verified position) or cleared, the first of a run of skipped steps and the
+    first record after one."""
     out: list[tuple[str, str]] = []
     t, dt = float(log.t[k]), log.scenario.dt_s
     for te, what in log.events:
         if (k == 0 and te <= t) or (t - dt < te <= t):
             out.append(("WARN", what))
-    if k == 0 or log.leader[k] != log.leader[k - 1]:
-        lead = int(log.leader[k])
-        out.append(("INFO", f"leader: drone {lead} (term {log.term[k]})" if lead else "no leader"))
+    prior = np.flatnonzero(log.committed[:k])
+    if log.committed[k] and (not prior.size or log.leader[k] != log.leader[prior[-1]]):
+        out.append(("INFO", f"leader: drone {int(log.leader[k])} (term {log.term[k]})"))
     if not log.committed[k]:
         if k == 0 or log.committed[k - 1]:
             out.append(("WARN", f"steps skipped from step {k} (no record)"))
@@ -244,31 +245,57 @@ def log_step(
             rec.log("events", rr.TextLog(text, level=level))
 
 
+def log_events(rec: Any, log: MissionLog, k: int) -> None:
+    """The events of step k (`step_events`) into the stream's text log, at step k's time."""
+    import rerun as rr
+
+    rec.set_time("step", sequence=k)
+    rec.set_time("time", duration=float(log.t[k]))
+    for level, text in step_events(log, k):
+        rec.log("events", rr.TextLog(text, level=level))
+
+
 @dataclass
 class StepStream:
     """Logs the steps of a running mission as they become known: `update(log, upto)` logs
-    every step not yet logged up to ``upto``, and logs again (without repeating its events)
-    a step whose record has arrived since; `finish(log)` does the same with the mission's
-    final log, so the stream ends with the records the results hold."""
+    every step not yet logged up to ``upto``, and logs again a step whose record has arrived
+    since; a step's events are logged once it has its record, or once it is ``settle_steps``
+    behind ``upto`` without one (so a late record is not first told as a skipped step), in
+    step order. `finish(log)` does the same with the mission's final log, so the stream ends
+    with the records and events the results hold."""
 
     rec: Any
     with_truth: bool = True
+    settle_steps: int = 2
     logged: dict[int, bool] = field(default_factory=dict)  # step -> had a record when logged
     steps_logged: int = 0
+    events_upto: int = -1  # the last step whose events are logged
 
-    def update(self, log: MissionLog, upto: int, errors: dict[str, np.ndarray] | None = None) -> None:
+    def update(
+        self,
+        log: MissionLog,
+        upto: int,
+        errors: dict[str, np.ndarray] | None = None,
+        settle: int | None = None,
+    ) -> None:
         upto = min(upto, len(log.t) - 1)
         for k in range(len(self.logged), upto + 1):
-            self._log(log, k, errors, with_events=True)
+            self._log(log, k, errors)
         for k in [s for s, had in self.logged.items() if not had and s <= upto]:
             if log.committed[k]:
-                self._log(log, k, errors, with_events=False)
+                self._log(log, k, errors)
+        settle = self.settle_steps if settle is None else settle
+        k = self.events_upto + 1
+        while k <= upto and (log.committed[k] or k <= upto - settle):
+            log_events(self.rec, log, k)
+            self.events_upto = k
+            k += 1
 
     def finish(self, log: MissionLog, errors: dict[str, np.ndarray] | None = None) -> None:
-        self.update(log, len(log.t) - 1, errors)
+        self.update(log, len(log.t) - 1, errors, settle=0)
 
-    def _log(self, log: MissionLog, k: int, errors: dict[str, np.ndarray] | None, with_events: bool) -> None:
-        log_step(self.rec, log, k, errors, with_events=with_events, with_truth=self.with_truth)
+    def _log(self, log: MissionLog, k: int, errors: dict[str, np.ndarray] | None) -> None:
+        log_step(self.rec, log, k, errors, with_events=False, with_truth=self.with_truth)
         self.logged[k] = bool(log.committed[k])
         self.steps_logged += 1
 

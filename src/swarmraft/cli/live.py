@@ -44,6 +44,7 @@ def live_options(f: Callable) -> Callable:
             "--record",
             "record_to",
             type=RrdFile(),
+            metavar="FILE.rrd",
             help="write the same stream to FILE.rrd (open it with `swarmraft view FILE.rrd`)",
         ),
         click.option(

@@ -13,7 +13,7 @@ from swarmraft.cli.app import console, main
 
 
 @main.command("record")
-@click.argument("folder", required=False, type=click.Path(path_type=Path))
+@click.argument("folder", metavar="[DIR]", required=False, type=click.Path(path_type=Path))
 @click.option("--scenario", help="a shipped scenario's name or a scenario TOML file (docs/scenarios.md)")
 @click.option(
     "--out",

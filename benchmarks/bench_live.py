@@ -60,6 +60,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0, help="mission length, s")
     ap.add_argument("--minutes", type=float, default=None, help="mission length, min (overrides --seconds)")
     ap.add_argument("--speed", type=float, default=1.0)
+    ap.add_argument("--viewer-memory", default=SERVER_MEMORY_LIMIT, help="the viewer server's buffer limit")
     args = ap.parse_args()
     seconds = args.minutes * 60 if args.minutes else args.seconds
     demo = find_scenario("demo").read_text()
@@ -71,7 +72,7 @@ def main() -> None:
         scenario.write_text(text)
         cmd = [sys.executable, "-m", "swarmraft", "mission", "--scenario", str(scenario)]
         cmd += ["--out", str(Path(tmp) / "out"), "--live", "--port", str(free_port())]
-        cmd += ["--speed", f"{args.speed:g}", "--linger", "0"]
+        cmd += ["--speed", f"{args.speed:g}", "--linger", "0", "--viewer-memory", args.viewer_memory]
         print(f"{args.drones} drones, {seconds:g} s of mission at speed {args.speed:g}, --live")
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         samples: list[tuple[float, float | None, float | None]] = []  # (s, server MB, mission MB)
@@ -99,7 +100,7 @@ def main() -> None:
         first, last = srv[:tenth], srv[-tenth:]
         top = max(s for _, s in srv)
         print(
-            f"viewer server RSS (limit on its buffer {SERVER_MEMORY_LIMIT}): max {top:.0f} MB; "
+            f"viewer server RSS (limit on its buffer {args.viewer_memory}): max {top:.0f} MB; "
             f"mean over the first tenth of the run {sum(s for _, s in first) / len(first):.0f} MB, "
             f"over the last tenth {sum(s for _, s in last) / len(last):.0f} MB ({len(srv)} samples)"
         )

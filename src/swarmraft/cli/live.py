@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ class RrdFile(click.ParamType):
 
 
 def live_options(f: Callable) -> Callable:
-    """--live, --record, --speed, --port and --linger, in that order on the help page."""
+    """--live, --record, --port, --viewer-memory and --linger, in that order on the help page."""
     options = [
         click.option(
             "--live",
@@ -55,6 +56,14 @@ def live_options(f: Callable) -> Callable:
             "[default: 9090]",
         ),
         click.option(
+            "--viewer-memory",
+            "viewer_memory",
+            default=None,
+            metavar="SIZE",
+            help="with --live: the most of the stream the viewer server keeps for browsers that "
+            "connect late, oldest dropped first, e.g. 64MiB or 1GiB [default: 256MiB]",
+        ),
+        click.option(
             "--linger",
             type=click.FloatRange(min=0),
             default=None,
@@ -75,11 +84,21 @@ SPEED = click.option(
 )
 
 
-def check_live_options(live: bool, speed: float | None, linger: float | None, port: int | None) -> None:
-    """--speed, --linger and --port mean something with --live only."""
-    for name, value in (("--speed", speed), ("--linger", linger), ("--port", port)):
+_SIZE = re.compile(r"^[0-9]+(\.[0-9]+)?\s*(B|KB|MB|GB|KiB|MiB|GiB)$")
+
+
+def check_live_options(
+    live: bool, speed: float | None, linger: float | None, port: int | None, viewer_memory: str | None = None
+) -> None:
+    """--speed, --linger, --port and --viewer-memory mean something with --live only."""
+    given = (("--speed", speed), ("--linger", linger), ("--port", port), ("--viewer-memory", viewer_memory))
+    for name, value in given:
         if value is not None and not live:
             raise click.BadParameter("only with --live", param_hint=name)
+    if viewer_memory is not None and not _SIZE.match(viewer_memory):
+        raise click.BadParameter(
+            f"{viewer_memory!r}: give a size such as 64MiB, 512MB or 1GiB", param_hint="--viewer-memory"
+        )
 
 
 @dataclass
@@ -93,6 +112,7 @@ class LiveSession:
     record_to: Path | None
     port: int | None
     linger: float | None
+    viewer_memory: str | None = None
     with_truth: bool = True
     settle_steps: int = 2  # events of a step without a record wait this many steps for it
     say: Any = console  # a rich Console: stderr when stdout carries JSON
@@ -104,7 +124,9 @@ class LiveSession:
         rr = vl.require_rerun("--live" if self.live else "--record")
         self.server = None
         if self.live:
-            self.server = vl.ViewerServer(port=self.port or vl.DEFAULT_PORT)
+            self.server = vl.ViewerServer(
+                port=self.port or vl.DEFAULT_PORT, memory_limit=self.viewer_memory or vl.SERVER_MEMORY_LIMIT
+            )
             self.server.start()
             self.say.print(f"live view: {self.server.url}", soft_wrap=True)
         self.rec = vl.open_stream(rr, self.name, self.server, self.record_to)

@@ -223,7 +223,9 @@ def print_mission_summary(summary: dict) -> None:
 )
 @live_options
 @SPEED
-def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, linger, speed) -> None:
+def mission(
+    scenario_file, out, seed, detector, as_json, live, record_to, port, viewer_memory, linger, speed
+) -> None:
     """Run a mission in the simulator: drones fly, sense, report to the Raft leader, and
     apply the verified positions committed through the Raft log, with the scenario's attacks
     and faults. Writes steps.csv (one row per step and drone), summary.json, scenario.json and
@@ -243,7 +245,7 @@ def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, 
     (docs/live.md). Neither changes the mission's results."""
     from swarmraft.experiments.mission import load_scenario, run_and_write
 
-    check_live_options(live, speed, linger, port)
+    check_live_options(live, speed, linger, port, viewer_memory)
     sc = load_scenario(scenario_file, seed=seed)
     if detector:
         from swarmraft.sim.scenario import with_detector
@@ -253,7 +255,7 @@ def mission(scenario_file, out, seed, detector, as_json, live, record_to, port, 
     say = err_console if as_json else console
     session = on_step = None
     if live or record_to:
-        session = LiveSession(sc.name, live, record_to, port, linger, say=say)
+        session = LiveSession(sc.name, live, record_to, port, linger, viewer_memory, say=say)
         on_step = _live_hook(session, sc.dt_s, (speed or 1.0) if live else None)
     try:
         if session is not None:

@@ -140,6 +140,7 @@ def launch(
     live: bool,
     record_to: Path | None,
     port: int | None,
+    viewer_memory: str | None,
     linger: float | None,
 ) -> None:
     """Run a scenario as a real swarm on this machine: one `swarmraft node` process per drone
@@ -182,11 +183,13 @@ def launch(
             read_sensor_log(replay, n)
         except SensorLogError as exc:
             raise click.BadParameter(str(exc), param_hint="--replay") from None
-    check_live_options(live, None, linger, port)
+    check_live_options(live, None, linger, port, viewer_memory)
     session = follow = world = None
     if live or record_to:
         # the drones' records can come a second or more after their step on a loaded machine
-        session = LiveSession(sc.name, live, record_to, port, linger, settle_steps=int(round(3 / sc.dt_s)))
+        session = LiveSession(
+            sc.name, live, record_to, port, linger, viewer_memory, settle_steps=int(round(3 / sc.dt_s))
+        )
         session.start()
         world = ScenarioWorld.build(sc)
     try:

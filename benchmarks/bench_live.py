@@ -104,6 +104,8 @@ def main() -> None:
             f"mean over the first tenth of the run {sum(s for _, s in first) / len(first):.0f} MB, "
             f"over the last tenth {sum(s for _, s in last) / len(last):.0f} MB ({len(srv)} samples)"
         )
+        marks = [srv[min(len(srv) - 1, round(q * (len(srv) - 1) / 10))] for q in range(11)]
+        print("viewer server RSS over the run: " + ", ".join(f"{t:.0f} s {m:.0f} MB" for t, m in marks))
     if own:
         print(f"mission process RSS: max {max(m for _, m in own):.0f} MB, at the end {own[-1][1]:.0f} MB")
     if cost:

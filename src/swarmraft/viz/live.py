@@ -187,7 +187,7 @@ def log_step(
     """Step k of ``log`` into the recording stream ``rec``: the swarm (truth, reported and
     verified positions coloured by status, repair arrows, protection levels, the leader), the
     per-drone errors, leader, term, commit latency and (``with_events``) the step's events.
-    ``errors`` (S, n) series (``swarmraft``: verified, ``gnss``) are used where given (a
+    ``errors["swarmraft"]`` (S, n), the verified positions' errors, is used where given (a
     results folder's own numbers); else the errors are computed against ``log.truth``."""
     import rerun as rr
 

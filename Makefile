@@ -1,11 +1,13 @@
 # Two commands do everything on a fresh machine with Python 3.11 and pip:
 #   make demo   set up .venv and run the demo job
 #   make test   set up .venv and run lint + tests
+# and one more shows the swarm live in a browser (docs/live.md):
+#   make live   set up .venv with the live extra (rerun) and fly the demo mission live
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint bench clean chromium
+.PHONY: demo live test lint bench clean chromium
 
 # apt-get as root, through sudo otherwise.
 APT := $(if $(filter 0,$(shell id -u)),,sudo) apt-get
@@ -24,8 +26,19 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(VENV)/.installed $@
 
+# Plus rerun's SDK and web viewer (about 500 MB), for --live, --record and `swarmraft view`.
+$(VENV)/.installed-live: pyproject.toml | $(BIN)/python
+	$(BIN)/pip install --quiet -e '.[live]'
+	touch $(VENV)/.installed $@
+
 demo: $(VENV)/.installed
 	$(BIN)/swarmraft demo
+
+# The demo mission (9 drones) at real-time speed with its viewer on 127.0.0.1:$(LIVE_PORT)
+# (the URL is printed); Ctrl-C stops it.
+LIVE_PORT ?= 9090
+live: $(VENV)/.installed-live
+	$(BIN)/swarmraft mission --scenario demo --live --port $(LIVE_PORT)
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check src tests benchmarks

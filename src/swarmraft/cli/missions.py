@@ -14,6 +14,7 @@ from swarmraft.cli.app import (
     print_wrapped,
     progress_bar,
 )
+from swarmraft.cli.live import SPEED, LiveSession, check_live_options, live_options
 from swarmraft.cli.options import OutFolder
 
 
@@ -220,7 +221,11 @@ def print_mission_summary(summary: dict) -> None:
     is_flag=True,
     help="print the summary as JSON on stdout (the lines saying what was written go to stderr)",
 )
-def mission(scenario_file, out, seed, detector, as_json) -> None:
+@live_options
+@SPEED
+def mission(
+    scenario_file, out, seed, detector, as_json, live, record_to, port, viewer_memory, linger, speed
+) -> None:
     """Run a mission in the simulator: drones fly, sense, report to the Raft leader, and
     apply the verified positions committed through the Raft log, with the scenario's attacks
     and faults. Writes steps.csv (one row per step and drone), summary.json, scenario.json and
@@ -233,9 +238,14 @@ def mission(scenario_file, out, seed, detector, as_json) -> None:
     drones' error against raw GNSS after each fault; per GNSS outage, INS aligned to the truth
     at the outage's start beside INS never reset. The "snapshot bound" is the Cramér-Rao bound
     of one step's measurements alone; SwarmRaft, which carries the previous record as a
-    prior, can be below it."""
+    prior, can be below it.
+
+    With --live, the swarm streams to rerun's web viewer while it flies, at real-time speed
+    (--speed X: X times faster); with --record FILE.rrd, the same stream goes to a file
+    (docs/live.md). Neither changes the mission's results."""
     from swarmraft.experiments.mission import load_scenario, run_and_write
 
+    check_live_options(live, speed, linger, port, viewer_memory)
     sc = load_scenario(scenario_file, seed=seed)
     if detector:
         from swarmraft.sim.scenario import with_detector
@@ -243,16 +253,48 @@ def mission(scenario_file, out, seed, detector, as_json) -> None:
         sc = with_detector(sc, detector)
     out = out or Path("results") / sc.name
     say = err_console if as_json else console
-    say.print(
-        f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}",
-        soft_wrap=True,
-    )
-    prog, start = progress_bar("mission", "steps")
-    with prog:
-        result = run_and_write(sc, out, start(sc.steps + 1, 0))
+    session = on_step = None
+    if live or record_to:
+        session = LiveSession(sc.name, live, record_to, port, linger, viewer_memory, say=say)
+        on_step = _live_hook(session, sc.dt_s, (speed or 1.0) if live else None)
+    try:
+        if session is not None:
+            session.start()  # a missing extra or a port in use stops here, before the mission
+        say.print(
+            f"mission {sc.name}: {sc.drones} drones, {sc.duration_s:g} s at {1 / sc.dt_s:g} Hz -> {out}",
+            soft_wrap=True,
+        )
+        prog, start = progress_bar("mission", "steps")
+        with prog:
+            result = run_and_write(sc, out, start(sc.steps + 1, 0), on_step)
+    except BaseException:
+        if session is not None:
+            session.stop()
+        raise
     if as_json:
         click.echo(json.dumps(result.summary, indent=2))
     else:
         print_mission_summary(result.summary)
     for p in [out / "steps.csv", out / "summary.json", out / "scenario.json", *mission_figures(result, out)]:
         say.print(f"wrote {p}", soft_wrap=True)
+    if session is not None:
+        say.print(session.rate_line(sc.dt_s), soft_wrap=True)
+        session.close(result.log, result.errors)
+
+
+def _live_hook(session: LiveSession, dt_s: float, speed: float | None):  # noqa: ANN202
+    """The simulator's per-step hook: pace to ``speed`` (None: as fast as it runs) and log
+    the steps known so far."""
+    from swarmraft.viz.live import Pacer
+
+    pacer = Pacer(dt_s, speed) if speed is not None else None
+    session.pacer = pacer
+
+    def on_step(log, k: int) -> None:  # noqa: ANN001
+        if k == 0:
+            session.static(log)
+        if pacer is not None:
+            pacer.wait(k)
+        session.update(log, k)
+
+    return on_step

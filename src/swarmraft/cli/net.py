@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from swarmraft.cli.app import console, err_console, main, print_table
+from swarmraft.cli.live import LiveSession, check_live_options, live_options
 from swarmraft.cli.options import OutFolder
 
 
@@ -128,8 +129,19 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     default=None,
     help="a sensor log every drone replays instead of the scenario's model (docs/records.md)",
 )
+@live_options
 def launch(
-    scenario: str, out: Path, seed: int | None, start_delay: float | None, relay: str, replay: Path | None
+    scenario: str,
+    out: Path,
+    seed: int | None,
+    start_delay: float | None,
+    relay: str,
+    replay: Path | None,
+    live: bool,
+    record_to: Path | None,
+    port: int | None,
+    viewer_memory: str | None,
+    linger: float | None,
 ) -> None:
     """Run a scenario as a real swarm on this machine: one `swarmraft node` process per drone
     on 127.0.0.1 over signed UDP datagrams.
@@ -145,6 +157,10 @@ def launch(
 
     With --replay LOG the drones' readings come from LOG (copied to OUT/sensors.csv); the
     scenario still sets the protocol, the steps and the faults.
+
+    With --live, the swarm streams to rerun's web viewer as the drones write their step files
+    (a few steps behind), the true positions taken from the scenario's world; --record
+    FILE.rrd writes the same stream to a file (docs/live.md).
     """
     from swarmraft.cli.missions import mission_figures, print_mission_summary
     from swarmraft.experiments.mission import load_scenario, write_results
@@ -167,17 +183,45 @@ def launch(
             read_sensor_log(replay, n)
         except SensorLogError as exc:
             raise click.BadParameter(str(exc), param_hint="--replay") from None
-    run = LocalSwarm(sc, find_scenario(scenario), out, seed, start_delay, relay, replay, say=console.print)
-    run.prepare()
-    console.print(f"wrote {out / 'keys'} and {run.swarm_path}", soft_wrap=True)
-    console.print(
-        f"starting {n} drone processes; step 0 at +{run.start_delay_s:.1f} s, {sc.duration_s:g} s of scenario"
-    )
-    console.print(run.network_line(), soft_wrap=True)
-    run.run()
+    check_live_options(live, None, linger, port, viewer_memory)
+    session = follow = world = None
+    if live or record_to:
+        # the drones' records can come a second or more after their step on a loaded machine
+        session = LiveSession(
+            sc.name, live, record_to, port, linger, viewer_memory, settle_steps=int(round(3 / sc.dt_s))
+        )
+        session.start()
+        world = ScenarioWorld.build(sc)
+    try:
+        run = LocalSwarm(
+            sc, find_scenario(scenario), out, seed, start_delay, relay, replay, say=console.print
+        )
+        run.prepare()
+        console.print(f"wrote {out / 'keys'} and {run.swarm_path}", soft_wrap=True)
+        console.print(
+            f"starting {n} drone processes; step 0 at +{run.start_delay_s:.1f} s, "
+            f"{sc.duration_s:g} s of scenario"
+        )
+        console.print(run.network_line(), soft_wrap=True)
+        if session is not None:
+            from swarmraft.cli.live import FollowLaunch
+            from swarmraft.net.results import LaunchTail
+
+            tail = LaunchTail(world, run.nodes_dir, run.start_unix_s, run.events, run.kills)
+            follow = FollowLaunch(session, tail, run.start_unix_s, sc.dt_s)
+            follow.start()
+        run.run()
+    except BaseException:
+        if session is not None:
+            if follow is not None:
+                follow.stop()
+            session.stop()
+        raise
+    if follow is not None:
+        follow.stop()
     g = gather_steps(run.nodes_dir, n, sc.steps, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()
-    world = ScenarioWorld.build(sc)
+    world = world or ScenarioWorld.build(sc)
     log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills)
     extra = {
         "launch": {
@@ -219,6 +263,9 @@ def launch(
         console.print(f"wrote {p}", soft_wrap=True)
     files = "drone-<id>.(steps.jsonl, events.jsonl, sent.csv, log, sqlite)"
     console.print(f"wrote {run.nodes_dir}/{files}", soft_wrap=True)
+    if session is not None:
+        console.print(session.rate_line(sc.dt_s), soft_wrap=True)
+        session.close(result.log, result.errors)
     if run.interrupted:
         err_console.print("interrupted")
         sys.exit(130)

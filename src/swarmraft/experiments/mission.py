@@ -424,9 +424,10 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
     return rows
 
 
-def run_and_write(sc: Scenario, out: Path, progress: Any = None) -> MissionResult:
-    """Run a mission and write steps.csv, summary.json and scenario.json into ``out``."""
-    return write_results(run_mission(sc, progress), out)
+def run_and_write(sc: Scenario, out: Path, progress: Any = None, on_step: Any = None) -> MissionResult:
+    """Run a mission and write steps.csv, summary.json and scenario.json into ``out``;
+    ``on_step(log, k)`` is the simulator's per-step hook (`sim.mission.run_mission`)."""
+    return write_results(run_mission(sc, progress, on_step), out)
 
 
 def write_results(log: MissionLog, out: Path, extra: dict[str, Any] | None = None) -> MissionResult:

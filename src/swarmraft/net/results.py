@@ -14,6 +14,7 @@ whether each process was up (its start and stop events, and the times launch SIG
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +129,84 @@ def launch_log(
         log.latency_ms = np.where(np.isfinite(first_apply), (first_apply - step_start) * 1000, np.nan)
     log.status = log.status.astype(str)
     return log
+
+
+class LaunchTail:
+    """A networked run's mission log while it runs, for the live view: each `poll` reads the
+    lines the drones have appended to their step files since the last one (a torn last line
+    waits for the next poll) and their event files, and fills what `launch_log` fills from
+    them (reports, records, leaders, latency, which processes are up). ``events`` (s after
+    step 0, what) is launch's list of faults, shared as it grows; ``kills`` gives the unix
+    times launch SIGKILLed each drone."""
+
+    def __init__(
+        self,
+        world: ScenarioWorld,
+        nodes_dir: Path,
+        start_unix_s: float,
+        events: list[tuple[float, str]],
+        kills: dict[int, list[float]],
+    ) -> None:
+        sc = world.sc
+        self.n, self.S = sc.drones, sc.steps + 1
+        self.nodes_dir, self.kills = Path(nodes_dir), kills
+        self.log = world_log(world)
+        self.log.events = events
+        self.step_start = start_unix_s + np.arange(self.S) * sc.dt_s
+        self._offsets = dict.fromkeys(range(1, self.n + 1), 0)
+        self._leader_of_term: dict[int, int] = {}
+
+    def poll(self) -> None:
+        log = self.log
+        for d in range(1, self.n + 1):
+            i = d - 1
+            evs = read_jsonl(drone_file(self.nodes_dir, d, "events.jsonl"))
+            for e in evs:
+                if e["event"] == "role" and e.get("role") == "leader":
+                    self._leader_of_term.setdefault(int(e["term"]), d)
+            log.alive[:, i] = False
+            for a, b in _up_intervals(evs, self.kills.get(d, [])):
+                log.alive[:, i] |= (self.step_start >= a) & (self.step_start < b)
+            for row in self._new_rows(d):
+                k = int(row["step"])
+                if not 0 <= k < self.S:
+                    continue
+                if row.get("reported") is not None:
+                    log.reported[k, i] = _floats(row["reported"])
+                if not row["committed"]:
+                    continue
+                lat = (row["applied_unix_s"] - self.step_start[k]) * 1000
+                if not np.isfinite(log.latency_ms[k]) or lat < log.latency_ms[k]:
+                    log.latency_ms[k] = lat
+                if log.committed[k]:
+                    continue
+                log.committed[k] = True
+                log.status[k] = row["status"]
+                log.term[k] = int(row["term"])
+                log.verified[k] = np.array([_floats(p) for p in row["positions"]])
+                log.hpl[k], log.vpl[k] = _levels(row.get("hpl"), self.n), _levels(row.get("vpl"), self.n)
+                for f in row["faulty"]:
+                    log.faulty[k, f - 1] = True
+                for m in row["missing"]:
+                    log.missing[k, m - 1] = True
+        for k in np.flatnonzero(log.committed & (log.leader == 0)):
+            log.leader[k] = self._leader_of_term.get(int(log.term[k]), 0)
+
+    def _new_rows(self, drone: int) -> list[dict]:
+        """The complete lines appended to the drone's step file since the last call."""
+        path = drone_file(self.nodes_dir, drone, "steps.jsonl")
+        try:
+            with path.open("rb") as f:
+                f.seek(self._offsets[drone])
+                data = f.read()
+        except FileNotFoundError:
+            return []
+        end = data.rfind(b"\n") + 1
+        self._offsets[drone] += end
+        rows = []
+        for line in data[:end].splitlines():
+            try:
+                rows.append(json.loads(line))
+            except ValueError:
+                continue
+        return rows

@@ -6,7 +6,7 @@ experiments layer's job."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -107,9 +107,22 @@ def ins_aligned_in_outages(log: MissionLog, drift: InsDrift) -> None:
             log.ins_aligned[a:b, i] = log.truth[a:b, i] + own.error(log.t[a:b] - log.t[a])
 
 
+#: ``on_step(log, k)``: called once step k's interval has passed (its deadline too), with a
+#: live copy of the mission log (see `Mission`); it must only read.
+StepHook = Callable[[MissionLog, int], None]
+
+
 class Mission:
-    def __init__(self, sc: Scenario) -> None:
+    """A mission in the simulator. With ``on_step``, a live copy of the log is kept beside the
+    result: it shares every array the run fills as it goes (reports, liveness, leaders, terms,
+    messages, events) and holds its own copy of the record arrays (verified positions, flags,
+    levels, status, latency), filled when a record is first applied, so the hook sees records
+    as they commit. The results are those of a run without the hook (the hook's log is never
+    read back)."""
+
+    def __init__(self, sc: Scenario, on_step: StepHook | None = None) -> None:
         self.sc = sc
+        self.on_step = on_step
         n = sc.drones
         # Every random draw of the world, in the order the mission has always made them
         # (shared with the networked runtime: sim.sensing).
@@ -143,6 +156,7 @@ class Mission:
         self.ins_base_t = np.zeros(n)
         self.ins_base_pos = self.traj.positions[0].copy()
         self.log = world_log(w)
+        self.live = _live_copy(self.log) if on_step is not None else None
         self.sent_to: dict[int, int | None] = {}
         self._first_apply: dict[int, float] = {}
         self._records: dict[int, StepRecord] = {}  # step -> its record, as first applied
@@ -245,6 +259,8 @@ class Mission:
             return
         self.log.node_records.setdefault(node, []).append((rec.step, rec.digest))
         now = self.cluster.now
+        if self.live is not None and rec.step not in self._first_apply and rec.step < len(self.live.t):
+            _note_record(self.live, rec, now - rec.step * self.sc.dt_s * 1000)
         self._first_apply.setdefault(rec.step, now)
         self._records.setdefault(rec.step, rec)  # every node applies the same (tests check digests)
         # The drone takes its verified position: its INS is aligned to it (for a flagged drone
@@ -303,6 +319,8 @@ class Mission:
         raft0, steps = 0, sc.steps
         for k in range(steps + 1):
             c.run(max(0.0, k * dt_ms - c.now))
+            if k > 0 and self.on_step is not None:
+                self.on_step(self.live, k - 1)
             self._step_with_history(k)
             total = sum(c.sent.values())
             if k > 0:
@@ -313,6 +331,8 @@ class Mission:
         c.run(dt_ms)
         self.log.raft_messages[steps] = sum(c.sent.values()) - raft0
         self.log.refused_proposals = c.refused  # each such step is skipped unless proposed again
+        if self.on_step is not None:
+            self.on_step(self.live, steps)
         c.run(2 * sc.protocol.deadline_ms + 500)  # let the last records commit (not counted)
         return self._finish()
 
@@ -339,5 +359,38 @@ class Mission:
         return log
 
 
-def run_mission(sc: Scenario, progress: Callable[[int], None] | None = None) -> MissionLog:
-    return Mission(sc).run(progress)
+def _live_copy(log: MissionLog) -> MissionLog:
+    """A log sharing ``log``'s arrays but for its own (empty) record arrays."""
+    n = log.scenario.drones
+    S = len(log.t)
+    return replace(
+        log,
+        verified=np.full((S, n, 3), np.nan),
+        hpl=np.full((S, n), np.nan),
+        vpl=np.full((S, n), np.nan),
+        faulty=np.zeros((S, n), bool),
+        missing=np.zeros((S, n), bool),
+        committed=np.zeros(S, bool),
+        status=np.full(S, "skipped", dtype=object),
+        latency_ms=np.full(S, np.nan),
+    )
+
+
+def _note_record(log: MissionLog, rec, latency_ms: float) -> None:  # noqa: ANN001 (a StepRecord)
+    k = rec.step
+    log.committed[k] = True
+    log.verified[k] = rec.positions
+    if rec.hpl is not None:
+        log.hpl[k], log.vpl[k] = rec.hpl, rec.vpl
+    log.faulty[k] = rec.faulty
+    log.missing[k] = rec.missing
+    log.status[k] = rec.status
+    log.latency_ms[k] = latency_ms
+
+
+def run_mission(
+    sc: Scenario, progress: Callable[[int], None] | None = None, on_step: StepHook | None = None
+) -> MissionLog:
+    """Run a mission; ``on_step(log, k)`` (optional) sees each step once its interval has
+    passed, without changing the results."""
+    return Mission(sc, on_step).run(progress)

@@ -36,18 +36,20 @@ class OutFolder(click.ParamType):
 IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
-class ImageFile(click.ParamType):
-    """A figure file to write: a name ending in one of ``suffixes`` (.png, .pdf or .svg by
-    default), not a folder, with no file on its way."""
+class OutFile(click.ParamType):
+    """A file to write: a name ending in one of ``suffixes``, not a folder, with no file on its
+    way; ``kind`` names what it holds in the error ("give an image file name ending in ...")."""
 
     name = "file"
 
-    def __init__(self, suffixes: tuple[str, ...] = IMAGE_SUFFIXES) -> None:
-        self.suffixes = suffixes
+    def __init__(self, suffixes: tuple[str, ...], kind: str) -> None:
+        self.suffixes, self.kind = suffixes, kind
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
         path = Path(value)
-        want = f"give an image file name ending in {', '.join(self.suffixes[:-1])} or {self.suffixes[-1]}"
+        ends = " or ".join(filter(None, [", ".join(self.suffixes[:-1]), self.suffixes[-1]]))
+        article = "an" if self.kind[:1].lower() in "aeiou" or self.kind.isupper() else "a"
+        want = f"give {article} {self.kind} file name ending in {ends}"
         if not str(value):
             self.fail(want, param, ctx)
         if path.suffix.lower() not in self.suffixes:
@@ -60,6 +62,11 @@ class ImageFile(click.ParamType):
                     self.fail(f"{p} is a file, not a folder", param, ctx)
                 break
         return path
+
+
+def ImageFile(suffixes: tuple[str, ...] = IMAGE_SUFFIXES) -> OutFile:  # noqa: N802 (a type, as click's)
+    """A figure file to write (.png, .pdf or .svg by default)."""
+    return OutFile(suffixes, "image")
 
 
 def _check_scheduler(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:

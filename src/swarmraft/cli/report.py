@@ -6,32 +6,13 @@ from __future__ import annotations
 import shlex
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import click
 
 from swarmraft.cli.app import console, main
+from swarmraft.cli.options import OutFile
 
 HTML_SUFFIXES = (".html", ".htm")
-
-
-class HtmlFile(click.ParamType):
-    """An HTML file to write: a name ending in .html or .htm, not a folder, no file on its way."""
-
-    name = "file"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
-        path = Path(value)
-        if path.suffix.lower() not in HTML_SUFFIXES:
-            self.fail(f"{value}: give a file name ending in .html", param, ctx)
-        if path.is_dir():
-            self.fail(f"{value} is a folder", param, ctx)
-        for p in path.parents:
-            if p.exists():
-                if not p.is_dir():
-                    self.fail(f"{p} is a file, not a folder", param, ctx)
-                break
-        return path
 
 
 def build_report(folder: Path, command: str) -> str:
@@ -68,7 +49,9 @@ def build_report(folder: Path, command: str) -> str:
 
 @main.command("report")
 @click.argument("folder", metavar="DIR", type=click.Path(path_type=Path))
-@click.option("--out", type=HtmlFile(), help="HTML file to write [default DIR/report.html]")
+@click.option(
+    "--out", type=OutFile(HTML_SUFFIXES, "HTML"), help="HTML file to write [default DIR/report.html]"
+)
 def report_cmd(folder: Path, out: Path | None) -> None:
     """Write one self-contained HTML file about a results folder: a mission's or a networked
     run's (`swarmraft mission`, `swarmraft launch`), a sweep's (`swarmraft sweep`) or a detector

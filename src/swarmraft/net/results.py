@@ -99,17 +99,8 @@ def launch_log(
                 continue
             recs.append((k, row["record"]))
             first_apply[k] = min(first_apply[k], row["applied_unix_s"])
-            if log.committed[k]:
-                continue
-            log.committed[k] = True
-            log.status[k] = row["status"]
-            log.term[k] = int(row["term"])
-            log.verified[k] = np.array([_floats(p) for p in row["positions"]])
-            log.hpl[k], log.vpl[k] = _levels(row.get("hpl"), n), _levels(row.get("vpl"), n)
-            for f in row["faulty"]:
-                log.faulty[k, f - 1] = True
-            for m in row["missing"]:
-                log.missing[k, m - 1] = True
+            if not log.committed[k]:
+                _note_row(log, k, row)
         log.node_records[d] = sorted(recs)
         sent = drone_file(nodes_dir, d, "sent.csv")
         if sent.exists():
@@ -129,6 +120,20 @@ def launch_log(
         log.latency_ms = np.where(np.isfinite(first_apply), (first_apply - step_start) * 1000, np.nan)
     log.status = log.status.astype(str)
     return log
+
+
+def _note_row(log: MissionLog, k: int, row: dict) -> None:
+    """Step k of ``log`` takes the record a drone's step-file row holds."""
+    n = log.scenario.drones
+    log.committed[k] = True
+    log.status[k] = row["status"]
+    log.term[k] = int(row["term"])
+    log.verified[k] = np.array([_floats(p) for p in row["positions"]])
+    log.hpl[k], log.vpl[k] = _levels(row.get("hpl"), n), _levels(row.get("vpl"), n)
+    for f in row["faulty"]:
+        log.faulty[k, f - 1] = True
+    for m in row["missing"]:
+        log.missing[k, m - 1] = True
 
 
 class LaunchTail:
@@ -178,17 +183,8 @@ class LaunchTail:
                 lat = (row["applied_unix_s"] - self.step_start[k]) * 1000
                 if not np.isfinite(log.latency_ms[k]) or lat < log.latency_ms[k]:
                     log.latency_ms[k] = lat
-                if log.committed[k]:
-                    continue
-                log.committed[k] = True
-                log.status[k] = row["status"]
-                log.term[k] = int(row["term"])
-                log.verified[k] = np.array([_floats(p) for p in row["positions"]])
-                log.hpl[k], log.vpl[k] = _levels(row.get("hpl"), self.n), _levels(row.get("vpl"), self.n)
-                for f in row["faulty"]:
-                    log.faulty[k, f - 1] = True
-                for m in row["missing"]:
-                    log.missing[k, m - 1] = True
+                if not log.committed[k]:
+                    _note_row(log, k, row)
         for k in np.flatnonzero(log.committed & (log.leader == 0)):
             log.leader[k] = self._leader_of_term.get(int(log.term[k]), 0)
 

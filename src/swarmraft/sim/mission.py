@@ -343,16 +343,8 @@ class Mission:
     def _finish(self) -> MissionLog:
         log = self.log
         for k, rec in self._records.items():
-            if k >= len(log.t):
-                continue
-            log.committed[k] = True
-            log.verified[k] = rec.positions
-            if rec.hpl is not None:
-                log.hpl[k], log.vpl[k] = rec.hpl, rec.vpl
-            log.faulty[k] = rec.faulty
-            log.missing[k] = rec.missing
-            log.status[k] = rec.status
-            log.latency_ms[k] = self._first_apply.get(k, np.nan) - k * self.sc.dt_s * 1000
+            if k < len(log.t):
+                _note_record(log, rec, self._first_apply.get(k, np.nan) - k * self.sc.dt_s * 1000)
         log.status = log.status.astype(str)
         ins_aligned_in_outages(log, self.drift)
         log.detector_params = dict(self.pcfg.detector_params)
@@ -376,7 +368,8 @@ def _live_copy(log: MissionLog) -> MissionLog:
     )
 
 
-def _note_record(log: MissionLog, rec, latency_ms: float) -> None:  # noqa: ANN001 (a StepRecord)
+def _note_record(log: MissionLog, rec: StepRecord, latency_ms: float) -> None:
+    """Step ``rec.step`` of ``log`` takes the record's positions, levels, flags and status."""
     k = rec.step
     log.committed[k] = True
     log.verified[k] = rec.positions

@@ -39,10 +39,10 @@ def suite(*args: str):
 
 def test_cheap_mutants_are_caught_by_the_fuzzer_alone_and_the_unmodified_core_passes():
     cheap = ["commit-back-on-heartbeat", "prevote-raises-term", "quorum-of-half", "vote-not-persisted"]
-    r = suite("--seeds", "200", *(a for m in cheap for a in ("--mutant", m)))
+    r = suite("--seeds", "150", *(a for m in cheap for a in ("--mutant", m)))
     assert r.exit_code == 0, r.output
     assert "4 of 4 mutants caught" in r.output
-    assert "passes" in r.output  # the unmodified core, over the same 200 seeds
+    assert "passes" in r.output  # the unmodified core, over the same 150 seeds
     for name in cheap:
         assert name in r.output
 
@@ -51,7 +51,7 @@ def test_cheap_mutants_are_caught_by_the_fuzzer_alone_and_the_unmodified_core_pa
 def test_each_new_check_alone_catches_its_mutants(check):
     only = [m.name for m in MUTANTS if m.only_by == check]
     assert only
-    args = ("--seeds", "20", *(a for m in only for a in ("--mutant", m)))
+    args = ("--seeds", "30", *(a for m in only for a in ("--mutant", m)))
     caught = suite(*args)
     assert caught.exit_code == 0 and f"{len(only)} of {len(only)} mutants caught" in caught.output
     blind = suite(*args, "--without", check)

@@ -34,16 +34,18 @@ _CRASH_ON: tuple[frozenset[str] | None, ...] = (
 class FuzzConfig:
     """A field left None is drawn per seed: ``nodes`` 3-7, ``loss`` 0-30 %,
     ``max_entries_per_msg`` 1-4 (64, the core's default, in one seed in five), ``pre_vote`` and
-    ``check_quorum`` each on or off. Per seed, too: duplication 0-10 %, reordering 0-30 % by up
-    to 20, 100 or 400 ms (deeper than an election timeout), and in a fraction ``heavy`` of the
-    seeds proposals come in batches of 5-80 entries, so logs grow to thousands of entries
-    that followers back from a crash or a cut catch up on 1-4 entries per append.
+    ``check_quorum`` each on or off. Per seed, too: duplication 0-10 %, reordering of 0-30 % of
+    messages by up to 20, 100 or 400 ms (deeper than an election timeout). In a fraction
+    ``heavy`` of the seeds proposals come in batches of 100-500 entries until 1000-3000 are
+    proposed, so followers back from a crash or a cut catch up on a long log 1-4 entries per
+    append; those seeds have 3-5 nodes and no reordering (the core has no in-flight window
+    yet: a leader answers every acknowledgement with another append, and reordered rejections
+    of appends in flight multiply them into hundreds of thousands of messages per seed).
 
     Faults are drawn every ``step_ms`` for ``fault_ms`` of virtual time; then the network heals
-    (no loss, duplication, reordering, cuts or partitions), every node is restarted, and a
-    leader of the highest term must exist within two of the longest election timeouts, keep
-    its term from then on, and bring every committed entry to every node within
-    ``settle_ms``. ``without``: invariants not checked (to show what each one catches)."""
+    for good and every node restarts; liveness and convergence as in `_settle`, convergence
+    within ``settle_ms``. ``without``: invariants not checked (names in
+    `sim.invariants.INVARIANTS`, and "liveness"), to show what each one alone catches."""
 
     nodes: int | None = None
     fault_ms: float = 3000.0

@@ -65,7 +65,12 @@ class FuzzConfig:
     p_cut: float = 0.05  # one-way cuts
     p_heal: float = 0.08
     p_propose: float = 0.6
+    max_events: int = 2_000_000  # a seed over this many events fails as "budget" (a message storm)
     without: frozenset[str] = frozenset()
+
+
+class _OverBudget(Exception):
+    """A seed ran more than ``FuzzConfig.max_events`` events."""
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,13 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
         return _settle(c, cfg, committed, result, liveness=pre_vote and "liveness" not in cfg.without)
     except InvariantViolation as exc:
         return result(False, str(exc), exc.invariant or "invariant")
+    except _OverBudget:
+        return result(
+            False,
+            f"seed {seed}: over {cfg.max_events} events by t = {c.now:.1f} ms (messages multiply: "
+            f"{dict(c.messages)})",
+            "budget",
+        )
     except RaftSafetyError as exc:
         return result(False, f"the core's own check: {exc}", "core-check")
     except Exception as exc:  # a crash of the core is a failure of the seed too
@@ -162,6 +174,8 @@ def _faults(c: Cluster, rng: random.Random, cfg: FuzzConfig, target: int, stats:
     t_end = c.now + cfg.fault_ms
     while c.now < t_end:
         c.run(cfg.step_ms)
+        if c.loop.events > cfg.max_events:
+            raise _OverBudget
         for i in [i for i, t in down_until.items() if t <= c.now]:
             del down_until[i]
             if not c.alive(i):
@@ -284,6 +298,8 @@ def _settle(
     lead, term, elected = c.leader(), top_term(), c.now
 
     def converged() -> bool:
+        if c.loop.events > cfg.max_events:
+            raise _OverBudget
         leader = c.nodes[lead]  # type: ignore[index]
         last = leader.log.last_index() if leader is not None else -1
         return all(node is not None and node.log.applied == last for node in c.nodes.values())

@@ -212,3 +212,29 @@ def peers_table(leader: int, fields: Mapping[str, object]) -> tuple[Table, str]:
         heard = "never" if e["heard_ms"] is None else f"{e['heard_ms']} ms"
         t.add_row(str(p), str(e.get("match", "-")), str(e.get("next", "-")), e.get("state", "-"), heard)
     return t, PEERS_LEGEND
+
+
+MUTANTS_LEGEND = (
+    "Each mutant is one bug written into a copy of the Raft core (swarmraft.sim.mutants), "
+    "fuzzed alone (no unit test) until its first failing seed. caught: whether a seed failed; "
+    "seed: the first failing seed (replay it on the mutated copy with --seed-start S --seeds 1); "
+    "check: the invariant or check that failed; seeds: seeds run. The unmodified core is "
+    "fuzzed first over the same seeds: a mutant result means something only if it passes."
+)
+
+
+def mutants_table(rows: Sequence[Mapping[str, object]], title: str) -> tuple[Table, str]:
+    """One row per mutant of ``raft-fuzz --mutants``: name, caught, seed, check, seeds."""
+    t = _table(title)
+    _names(t, "mutant", [r["name"] for r in rows])
+    for col in ("caught", "seed", "check", "seeds"):
+        t.add_column(col, justify="left" if col in ("caught", "check") else "right", no_wrap=True)
+    for r in rows:
+        t.add_row(
+            str(r["name"]),
+            str(r["caught"]),
+            "-" if r["seed"] is None else str(r["seed"]),
+            str(r["check"] or "-"),
+            str(r["seeds"]),
+        )
+    return t, MUTANTS_LEGEND

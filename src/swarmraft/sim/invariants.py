@@ -1,4 +1,5 @@
-"""Raft safety invariants, checked by the simulator after every event.
+"""Raft safety invariants, checked by the simulator after every event (liveness, which needs
+the whole run, is checked by `sim.fuzz`).
 
 Logs are compared through chain hashes: h[i] = hash(h[i-1], term_i, kind_i, data_i), so two
 logs agree on every entry up to i exactly when their h[i] agree. Each event changes one node,
@@ -9,24 +10,48 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from swarmraft.raft import Entry, RaftNode, Role
+from swarmraft.raft import Entry, HardState, Message, MsgType, RaftNode, Role, Storage
+
+#: The invariants by name (``InvariantViolation.invariant``; ``raft-fuzz --without NAME``).
+INVARIANTS = (
+    "election-safety",  # at most one leader per term
+    "leader-append-only",  # a leader never overwrites or deletes its own entries
+    "log-matching",  # same index and term: same prefix
+    "term-entries-kept",  # no node drops an entry of its current term
+    "leader-completeness",  # a new leader holds every committed entry
+    "commit-beyond-log",  # a node never commits past its last entry
+    "committed-unchanged",  # a committed entry never changes, on any node
+    "commit-monotonic",  # a node's commit index never goes back, across restarts too
+    "leader-commit-rule",  # a leader moves its commit index only onto an entry of its own term
+    "durable-term-vote",  # a persisted term never goes back; one persisted vote per term
+    "durable-before-send",  # a granted vote, an acknowledged entry: on disk before the answer leaves
+    "state-machine-safety",  # no two nodes apply different entries at one index
+)
 
 
 class InvariantViolation(AssertionError):
-    """A Raft safety property failed; the message names it, the seed and the time."""
+    """A Raft safety property failed; the message names it, the seed and the time, and
+    ``invariant`` is its name in `INVARIANTS`."""
+
+    def __init__(self, message: str, invariant: str = "") -> None:
+        super().__init__(message)
+        self.invariant = invariant
 
 
 @dataclass
 class _NodeTrack:
     chain: list[int] = field(default_factory=lambda: [0])  # chain[i] for i = 0..last
-    commit: int = 0
+    terms: list[int] = field(default_factory=lambda: [0])  # the term of entry i
+    commit: int = 0  # highest commit index seen in this incarnation
     leader_term: int | None = None
     leader_last: int = 0
 
 
-def _chain_extend(chain: list[int], entries: list[Entry]) -> None:
+def _chain_extend(track: _NodeTrack, entries: list[Entry]) -> None:
+    chain = track.chain
     for e in entries:
         chain.append(hash((chain[-1], e.term, e.kind, e.data)))
+        track.terms.append(e.term)
 
 
 @dataclass
@@ -36,18 +61,21 @@ class InvariantChecker:
     by_index_term: dict[tuple[int, int], int] = field(default_factory=dict)  # -> chain hash
     committed: list[int] = field(default_factory=lambda: [0])  # chain hash at committed index
     applied: dict[int, Entry] = field(default_factory=dict)
-    hard: dict[int, tuple[int, int | None]] = field(default_factory=dict)  # persisted term, vote
+    hard: dict[int, HardState] = field(default_factory=dict)  # last persisted hard state seen
     nodes: dict[int, _NodeTrack] = field(default_factory=dict)
     checks: int = 0
+    without: frozenset[str] = frozenset()  # invariants not checked (to test the checker itself)
 
-    def fail(self, now: float, what: str) -> None:
-        raise InvariantViolation(f"seed {self.seed}, t = {now:.1f} ms: {what}")
+    def fail(self, now: float, invariant: str, what: str) -> None:
+        if invariant not in self.without:
+            raise InvariantViolation(f"seed {self.seed}, t = {now:.1f} ms: {invariant}: {what}", invariant)
 
     def restarted(self, node_id: int) -> None:
         """Forget a node's volatile tracking; its log is rehashed from index 1 next check."""
         self.nodes.pop(node_id, None)
 
-    def check(self, now: float, node: RaftNode, hard_term: int, hard_vote: int | None) -> None:
+    def check(self, now: float, node: RaftNode, hard: HardState) -> None:
+        """Check node's state after an event; ``hard`` is what its storage holds."""
         self.checks += 1
         nid = node.id
         track = self.nodes.get(nid)
@@ -63,65 +91,135 @@ class InvariantChecker:
         # A leader never overwrites or deletes its own entries.
         if node.role == Role.LEADER and track.leader_term == node.term and dirty is not None:
             if dirty <= track.leader_last:
-                self.fail(now, f"leader {nid} of term {node.term} rewrote its log from index {dirty}")
+                self.fail(
+                    now,
+                    "leader-append-only",
+                    f"leader {nid} of term {node.term} rewrote its log from index {dirty}",
+                )
 
         # Log matching: entries with the same index and term have identical prefixes.
         if dirty is not None:
+            # Only the leader of a term writes entries of that term and it never takes one back,
+            # so no node drops an entry of its current term.
+            for i in range(dirty, len(track.terms) if not fresh else 0):
+                if track.terms[i] == node.term and (i > last or node.log.term(i) != node.term):
+                    self.fail(
+                        now,
+                        "term-entries-kept",
+                        f"node {nid} dropped entry {i} of its current term {node.term}",
+                    )
+                    break
             del track.chain[dirty:]
+            del track.terms[dirty:]
             start = len(track.chain)
-            _chain_extend(track.chain, node.log.slice(start, last + 1))
+            _chain_extend(track, node.log.slice(start, last + 1))
             for i in range(start, last + 1):
                 key = (i, node.log.term(i) or 0)
                 seen = self.by_index_term.setdefault(key, track.chain[i])
                 if seen != track.chain[i]:
                     self.fail(
                         now,
-                        f"log matching: node {nid} differs from another log before index {i} (term {key[1]})",
+                        "log-matching",
+                        f"node {nid} differs from another log before index {i} (term {key[1]})",
                     )
 
         # Election safety, and leader completeness on taking office.
         if node.role == Role.LEADER:
             other = self.leaders.setdefault(node.term, nid)
             if other != nid:
-                self.fail(now, f"two leaders in term {node.term}: {other} and {nid}")
+                self.fail(now, "election-safety", f"two leaders in term {node.term}: {other} and {nid}")
             if track.leader_term != node.term:
                 c = len(self.committed) - 1
                 if last < c or track.chain[c] != self.committed[c]:
                     self.fail(
                         now,
-                        f"leader completeness: leader {nid} of term {node.term} lacks "
-                        f"committed entries up to {c}",
+                        "leader-completeness",
+                        f"leader {nid} of term {node.term} lacks committed entries up to {c}",
                     )
                 track.leader_term = node.term
             track.leader_last = last
         else:
             track.leader_term = None
 
-        # Committed entries never change and are never lost.
+        # Committed entries never change and are never lost; a commit index never goes back.
         commit = node.log.committed
         if commit > last:
-            self.fail(now, f"node {nid} commit {commit} beyond its last index {last}")
+            self.fail(now, "commit-beyond-log", f"node {nid} commit {commit} beyond its last index {last}")
+        if (
+            commit > track.commit
+            and not fresh
+            and node.role == Role.LEADER
+            and node.log.term(commit) != node.term
+        ):
+            self.fail(
+                now,
+                "leader-commit-rule",
+                f"leader {nid} of term {node.term} moved its commit index to {commit}, an entry of term "
+                f"{node.log.term(commit)}",
+            )
+        if commit < track.commit and not fresh:
+            self.fail(
+                now, "commit-monotonic", f"node {nid} commit index went back from {track.commit} to {commit}"
+            )
         if commit > track.commit or fresh:
             for i in range(track.commit + 1 if not fresh else 1, commit + 1):
                 if i < len(self.committed):
                     if self.committed[i] != track.chain[i]:
-                        self.fail(now, f"committed entry {i} differs on node {nid}")
+                        self.fail(now, "committed-unchanged", f"committed entry {i} differs on node {nid}")
                 else:
                     self.committed.append(track.chain[i])
             track.commit = commit
 
-        # Term and vote never go backwards, across restarts too.
+        # Term, vote and commit index on disk never go backwards, across restarts too.
         prev = self.hard.get(nid)
         if prev is not None:
-            pt, pv = prev
-            if hard_term < pt:
-                self.fail(now, f"node {nid} persisted term went back from {pt} to {hard_term}")
-            if hard_term == pt and pv is not None and hard_vote != pv:
-                self.fail(now, f"node {nid} changed its vote in term {pt} from {pv} to {hard_vote}")
-        self.hard[nid] = (hard_term, hard_vote)
+            if hard.term < prev.term:
+                self.fail(
+                    now,
+                    "durable-term-vote",
+                    f"node {nid} persisted term went back from {prev.term} to {hard.term}",
+                )
+            if hard.term == prev.term and prev.vote is not None and hard.vote != prev.vote:
+                self.fail(
+                    now,
+                    "durable-term-vote",
+                    f"node {nid} changed its vote in term {prev.term} from {prev.vote} to {hard.vote}",
+                )
+            if hard.commit < prev.commit:
+                self.fail(
+                    now,
+                    "commit-monotonic",
+                    f"node {nid} persisted commit index went back from {prev.commit} to {hard.commit}",
+                )
+        self.hard[nid] = hard
+
+    def sending(self, now: float, m: Message, storage: Storage) -> None:
+        """Durable before sent: a granted vote is on disk (that term, that candidate) before the
+        answer leaves, and so is every entry an append answer acknowledges."""
+        if m.reject:
+            return
+        if m.type == MsgType.VOTE_RESP:
+            hs = storage.initial_state()
+            if hs.term != m.term or hs.vote != m.to:
+                self.fail(
+                    now,
+                    "durable-before-send",
+                    f"node {m.frm} grants its vote to {m.to} in term {m.term} with term {hs.term} and "
+                    f"vote {hs.vote} on disk",
+                )
+        elif m.type == MsgType.APP_RESP and m.index > storage.last_index():
+            self.fail(
+                now,
+                "durable-before-send",
+                f"node {m.frm} acknowledges index {m.index} with {storage.last_index()} entries on disk",
+            )
 
     def applied_entry(self, now: float, node_id: int, entry: Entry) -> None:
         """State-machine safety: no two nodes apply different entries at one index."""
         seen = self.applied.setdefault(entry.index, entry)
         if seen != entry:
-            self.fail(now, f"node {node_id} applied {entry} at index {entry.index}, another applied {seen}")
+            self.fail(
+                now,
+                "state-machine-safety",
+                f"node {node_id} applied {entry} at index {entry.index}, another applied {seen}",
+            )

@@ -32,14 +32,19 @@ from swarmraft.raft import (
     EntryKind,
     MemoryStorage,
     Message,
+    MsgType,
     NotLeader,
     ProposalDropped,
     RaftConfig,
     RaftNode,
+    Ready,
     Status,
 )
 from swarmraft.sim.invariants import InvariantChecker
 from swarmraft.sim.network import LinkModel, Network
+
+# answers that promise something the sender must have saved first
+_PROMISES = frozenset({MsgType.VOTE_RESP, MsgType.APP_RESP})
 
 
 class EventLoop:
@@ -76,8 +81,9 @@ class Cluster:
 
     ``tick_ms`` 10 with ``election_tick`` 15 and ``heartbeat_tick`` 5 gives 150-300 ms
     election timeouts and 50 ms heartbeats (the Raft paper; docs/protocol.md); the default network
-    has 1-3 ms one-way delay and no loss. ``raft_options`` sets further `RaftConfig` fields
-    (flow control limits) on every node.
+    has 1-3 ms one-way delay and no loss. ``raft_options`` sets further `RaftConfig` fields on
+    every node (flow control limits, ``max_entries_per_msg``); ``without`` names invariants not
+    checked.
     """
 
     def __init__(
@@ -93,6 +99,7 @@ class Cluster:
         check_invariants: bool = True,
         on_apply: Callable[[int, Entry], None] | None = None,
         raft_options: Mapping[str, Any] | None = None,
+        without: frozenset[str] = frozenset(),
     ) -> None:
         if n < 1:
             raise ValueError("Cluster: n must be >= 1")
@@ -120,7 +127,8 @@ class Cluster:
         self._incarnation = dict.fromkeys(self.ids, 0)
         self._applied: dict[int, list[Entry]] = {i: [] for i in self.ids}
         self._held: dict[int, list[Callable[[], None]]] = {}  # paused node -> deliveries waiting
-        self.checker = InvariantChecker(seed) if check_invariants else None
+        self.checker = InvariantChecker(seed, without=without) if check_invariants else None
+        self._armed: dict[int, tuple[str, frozenset[str] | None, float | None]] = {}  # crash_in_ready
         self.sent: Counter[str] = Counter()
         self.app_sent = 0
         self.refused = 0  # proposals a leader refused (ProposalDropped)
@@ -171,10 +179,16 @@ class Cluster:
             if rd.hard_state is not None or rd.entries or rd.committed:
                 changed = True
                 self.storage[i].save(rd.hard_state, rd.entries)
+            if self._armed and self._crash_point(i, rd, "persisted"):
+                return
             for m in rd.messages:
+                if self.checker and m.type in _PROMISES:
+                    self.checker.sending(self.loop.now, m, self.storage[i])
                 self.sent[m.type] += 1  # StrEnum: counts are looked up by "MsgApp" too
                 for d in self.network.delays(self.rng, m.frm, m.to):
                     self.loop.after(d, self._deliver, m)
+            if self._armed and self._crash_point(i, rd, "sent"):
+                return
             for e in rd.committed:
                 self._applied[i].append(e)
                 if self.checker:
@@ -185,8 +199,7 @@ class Cluster:
         # Without state in a Ready nothing persistent changed (at most a leader stepped
         # down, or messages went out), so there is nothing new for the invariants to see.
         if self.checker and (changed or i not in self.checker.nodes):
-            hs = self.storage[i].initial_state()
-            self.checker.check(self.loop.now, node, hs.term, hs.vote)
+            self.checker.check(self.loop.now, node, self.storage[i].initial_state())
 
     # -- running --------------------------------------------------------------------------
     @property
@@ -223,6 +236,44 @@ class Cluster:
         self._check_id(i)
         self.nodes[i] = None
         self._held.pop(i, None)
+        self._armed.pop(i, None)
+
+    def crash_in_ready(
+        self, i: int, point: str, on: Iterable[str] | None = None, restart_ms: float | None = None
+    ) -> None:
+        """Crash node i in the middle of handling its next `Ready` that sends a message (of a
+        type in ``on``, e.g. ``{"MsgVoteResp"}``; any type if None): ``point`` "persisted"
+        crashes after that Ready is saved and before its messages leave, "sent" after they
+        leave and before anything later is saved. With ``restart_ms`` the node restarts that
+        long after (0: as the next event). Replaces an earlier arming of node i; `disarm`
+        cancels it."""
+        self._check_id(i)
+        if point not in ("persisted", "sent"):
+            raise ValueError('crash_in_ready: point must be "persisted" or "sent"')
+        self._armed[i] = (point, frozenset(on) if on is not None else None, restart_ms)
+
+    def disarm(self) -> None:
+        """Cancel every pending `crash_in_ready`."""
+        self._armed.clear()
+
+    def _crash_point(self, i: int, rd: Ready, point: str) -> bool:
+        """Crash node i here if it is armed for this point and this Ready; returns whether it did."""
+        arm = self._armed.get(i)
+        if arm is None or arm[0] != point or not rd.messages:
+            return False
+        if arm[1] is not None and not any(m.type in arm[1] for m in rd.messages):
+            return False
+        node = self.nodes[i]
+        if self.checker and node is not None:  # what it saved is checked before it goes
+            self.checker.check(self.loop.now, node, self.storage[i].initial_state())
+        self.crash(i)
+        if arm[2] is not None:
+            self.loop.after(arm[2], self._restart_if_down, i, self._incarnation[i])
+        return True
+
+    def _restart_if_down(self, i: int, incarnation: int) -> None:
+        if self.nodes.get(i) is None and self._incarnation[i] == incarnation:
+            self._start(i)
 
     def pause(self, i: int, ms: float) -> None:
         """Freeze node i for ``ms`` (a SIGSTOPped process): it keeps its state but gets no
@@ -311,6 +362,21 @@ class Cluster:
             handler(to, payload)
 
     # -- client side ----------------------------------------------------------------------
+    def propose_batch(self, datas: list[bytes], via: int | None = None) -> bool:
+        """Propose several entries in one `MsgProp` (one append for the leader to send, as a
+        client batching its writes); ``via`` and the result as in `propose`."""
+        target = self.leader() if via is None else via
+        if target is None or not datas:
+            return False
+        self._check_id(target)
+        node = self.nodes.get(target)
+        if node is None:
+            return False
+        was_leader = node.role == "leader"
+        node.step(Message(MsgType.PROP, target, target, 0, entries=tuple(Entry(0, 0, d) for d in datas)))
+        self._process(target)
+        return was_leader
+
     def propose(self, data: bytes, via: int | None = None) -> bool:
         """Propose ``data``. With ``via`` None, at the current leader; otherwise at node
         ``via`` (a follower forwards it to the leader it knows). Returns True if a leader

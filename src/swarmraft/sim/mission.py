@@ -73,16 +73,9 @@ def world_log(w: ScenarioWorld) -> MissionLog:
         spoofed=np.zeros((S, n), bool),
         outage=np.zeros((S, n), bool),
         alive=np.zeros((S, n), bool),
-        verified=nan3.copy(),
-        hpl=np.full((S, n), np.nan),
-        vpl=np.full((S, n), np.nan),
-        faulty=np.zeros((S, n), bool),
-        missing=np.zeros((S, n), bool),
-        committed=np.zeros(S, bool),
-        status=np.full(S, "skipped", dtype=object),
         leader=np.zeros(S, int),
         term=np.zeros(S, int),
-        latency_ms=np.full(S, np.nan),
+        **no_records(S, n),
         raft_messages=np.zeros(S, int),
         report_messages=np.zeros(S, int),
         ins_sigma_window=ins_sigma(w.grade, sc.protocol.innovation_window_s),
@@ -355,17 +348,22 @@ def _live_copy(log: MissionLog) -> MissionLog:
     """A log sharing ``log``'s arrays but for its own (empty) record arrays."""
     n = log.scenario.drones
     S = len(log.t)
-    return replace(
-        log,
-        verified=np.full((S, n, 3), np.nan),
-        hpl=np.full((S, n), np.nan),
-        vpl=np.full((S, n), np.nan),
-        faulty=np.zeros((S, n), bool),
-        missing=np.zeros((S, n), bool),
-        committed=np.zeros(S, bool),
-        status=np.full(S, "skipped", dtype=object),
-        latency_ms=np.full(S, np.nan),
-    )
+    return replace(log, **no_records(S, n))
+
+
+def no_records(S: int, n: int) -> dict[str, np.ndarray]:
+    """A log's record arrays before any record: nan positions, levels and latencies, no
+    flags, every step skipped."""
+    return {
+        "verified": np.full((S, n, 3), np.nan),
+        "hpl": np.full((S, n), np.nan),
+        "vpl": np.full((S, n), np.nan),
+        "faulty": np.zeros((S, n), bool),
+        "missing": np.zeros((S, n), bool),
+        "committed": np.zeros(S, bool),
+        "status": np.full(S, "skipped", dtype=object),
+        "latency_ms": np.full(S, np.nan),
+    }
 
 
 def _note_record(log: MissionLog, rec: StepRecord, latency_ms: float) -> None:

@@ -60,6 +60,9 @@ class InvariantChecker:
     leaders: dict[int, int] = field(default_factory=dict)  # term -> leader id
     by_index_term: dict[tuple[int, int], int] = field(default_factory=dict)  # -> chain hash
     committed: list[int] = field(default_factory=lambda: [0])  # chain hash at committed index
+    # the lowest term of a node seen holding each index committed: the term it was committed in
+    # (its leader learns first); a leader of term L must hold those committed before L
+    committed_term: list[int] = field(default_factory=lambda: [0])
     applied: dict[int, Entry] = field(default_factory=dict)
     hard: dict[int, HardState] = field(default_factory=dict)  # last persisted hard state seen
     nodes: dict[int, _NodeTrack] = field(default_factory=dict)
@@ -130,6 +133,8 @@ class InvariantChecker:
                 self.fail(now, "election-safety", f"two leaders in term {node.term}: {other} and {nid}")
             if track.leader_term != node.term:
                 c = len(self.committed) - 1
+                while c > 0 and self.committed_term[c] >= node.term:
+                    c -= 1  # committed in this term or later: not a new leader's to hold
                 if last < c or track.chain[c] != self.committed[c]:
                     self.fail(
                         now,
@@ -166,8 +171,10 @@ class InvariantChecker:
                 if i < len(self.committed):
                     if self.committed[i] != track.chain[i]:
                         self.fail(now, "committed-unchanged", f"committed entry {i} differs on node {nid}")
+                    self.committed_term[i] = min(self.committed_term[i], node.term)
                 else:
                     self.committed.append(track.chain[i])
+                    self.committed_term.append(node.term)
             track.commit = commit
 
         # Term, vote and commit index on disk never go backwards, across restarts too.

@@ -151,8 +151,8 @@ def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
     for te, what in log.events:
         if (k == 0 and te <= t) or (t - dt < te <= t):
             out.append(("WARN", what))
-    prior = np.flatnonzero(log.committed[:k])
-    if log.committed[k] and (not prior.size or log.leader[k] != log.leader[prior[-1]]):
+    prior = _previous_record(log, k)
+    if log.committed[k] and (prior is None or log.leader[k] != log.leader[prior]):
         out.append(("INFO", f"leader: drone {int(log.leader[k])} (term {log.term[k]})"))
     if not log.committed[k]:
         if k == 0 or log.committed[k - 1]:
@@ -173,6 +173,15 @@ def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
         for i in np.flatnonzero(~log.faulty[k] & log.faulty[k - 1]):
             out.append(("INFO", f"drone {i + 1} cleared"))
     return out
+
+
+def _previous_record(log: MissionLog, k: int) -> int | None:
+    """The last step before k with a record (a walk back over the skipped steps only, so a
+    stream of S steps costs O(S), not O(S^2))."""
+    j = k - 1
+    while j >= 0 and not log.committed[j]:
+        j -= 1
+    return j if j >= 0 else None
 
 
 def log_step(
@@ -268,6 +277,7 @@ class StepStream:
     with_truth: bool = True
     settle_steps: int = 2
     logged: dict[int, bool] = field(default_factory=dict)  # step -> had a record when logged
+    waiting: set[int] = field(default_factory=set)  # steps logged without their record yet
     steps_logged: int = 0
     events_upto: int = -1  # the last step whose events are logged
 
@@ -281,9 +291,8 @@ class StepStream:
         upto = min(upto, len(log.t) - 1)
         for k in range(len(self.logged), upto + 1):
             self._log(log, k, errors)
-        for k in [s for s, had in self.logged.items() if not had and s <= upto]:
-            if log.committed[k]:
-                self._log(log, k, errors)
+        for k in sorted(s for s in self.waiting if s <= upto and log.committed[s]):
+            self._log(log, k, errors)
         settle = self.settle_steps if settle is None else settle
         k = self.events_upto + 1
         while k <= upto and (log.committed[k] or k <= upto - settle):
@@ -297,6 +306,10 @@ class StepStream:
     def _log(self, log: MissionLog, k: int, errors: dict[str, np.ndarray] | None) -> None:
         log_step(self.rec, log, k, errors, with_events=False, with_truth=self.with_truth)
         self.logged[k] = bool(log.committed[k])
+        if self.logged[k]:
+            self.waiting.discard(k)
+        else:
+            self.waiting.add(k)
         self.steps_logged += 1
 
 

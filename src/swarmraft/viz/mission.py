@@ -181,7 +181,7 @@ def _error_panel(
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-nan steps give nan
             ax.plot(t, np.nanmedian(y, axis=1), **style)
-            ax.plot(t, np.nanmax(y, axis=1), **{**style, "lw": 0.5, "alpha": 0.6, "label": "_nolegend_"})
+            ax.plot(t, np.fmax.reduce(y, axis=1), **{**style, "lw": 0.5, "alpha": 0.6, "label": "_nolegend_"})
 
     draw("gnss", color="tab:red", lw=0.8, label="raw GNSS")
     draw("ins_alone", color="tab:gray", lw=0.8, ls=":", label="INS never reset")
@@ -193,7 +193,7 @@ def _error_panel(
     _shade(ax, t, (~alive[:, group]).any(axis=1), "black", "crashed (not reporting)")
     mine = wrong[:, group].any(axis=1)
     if mine.any():
-        y = np.nan_to_num(np.nanmax(errors["swarmraft"][mine][:, group], axis=1), nan=0.0)
+        y = np.nan_to_num(np.fmax.reduce(errors["swarmraft"][mine][:, group], axis=1), nan=0.0)
         ax.plot(
             t[mine],
             y,

@@ -36,6 +36,7 @@ messages = st.builds(
     commit=st.integers(0, U64),
     reject=st.booleans(),
     reject_hint=st.integers(0, U64),
+    force=st.booleans(),
 )
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
@@ -213,7 +214,7 @@ def test_unknown_message_type_entry_kind_and_flags_are_refused():
         p[0] = code
         assert reason(wire.decode_message, bytes(p)) == "bad_value"
     p = raft_payload()
-    p[1] = 0x02
+    p[1] = 0x04
     assert reason(wire.decode_message, bytes(p)) == "bad_value"
     p = raft_payload()
     p[54 + 16] = 7  # first entry's kind

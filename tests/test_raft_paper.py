@@ -420,3 +420,44 @@ def test_check_quorum_followers_ignore_votes_while_the_leader_is_alive():
     net.send()
     c.step(Message(MsgType.VOTE, 2, 3, term=5, index=5, log_term=5))
     assert c.term == 1 and not msgs_of(c, MsgType.VOTE_RESP)
+
+
+@pytest.mark.parametrize("pre_vote", [True, False])
+def test_forced_campaign_deposes_a_live_leader(pre_vote):
+    """A forced election (a leader transfer, or a voter that found its leader faulty) skips the
+    pre-vote and is answered inside the leader lease; an ordinary one is not (tested above)."""
+    a, b, c = (make_node(i, PEERS3, check_quorum=True, pre_vote=pre_vote) for i in PEERS3)
+    net = Net(a, b, c)
+    net.campaign(1)
+    assert a.role == Role.LEADER and a.term == 1
+    b.tick()
+    net.send()
+    b.campaign()  # ordinary: a pre-vote (or vote) nobody in the lease answers
+    net.send()
+    assert a.role == Role.LEADER and b.role != Role.LEADER
+    b.campaign(force=True)
+    votes = msgs_of(b, MsgType.VOTE)
+    assert votes and all(m.force for m in votes) and not msgs_of(b, MsgType.PRE_VOTE)
+    net.send(*votes)
+    assert b.role == Role.LEADER and b.term > 1
+    net.send()
+    assert a.role == Role.FOLLOWER and a.lead == 2
+
+
+def test_forced_campaign_still_needs_an_up_to_date_log():
+    a, b, c = (make_node(i, PEERS3, check_quorum=True) for i in PEERS3)
+    net = Net(a, b, c)
+    net.campaign(1)
+    net.drop |= {(1, 3)}
+    net.propose(1, b"x")  # reaches 2, not 3
+    net.drop.clear()
+    c.campaign(force=True)
+    votes = msgs_of(c, MsgType.VOTE)
+    answers = []
+    for m in votes:
+        net.nodes[m.to].step(m)
+        answers += msgs_of(net.nodes[m.to], MsgType.VOTE_RESP)
+    assert len(answers) == 2 and all(r.reject for r in answers)  # answered, and refused
+    for r in answers:
+        c.step(r)
+    assert c.role == Role.FOLLOWER and c.term == 2

@@ -45,11 +45,12 @@ MAX_PAYLOAD = MAX_DATAGRAM - HEADER_SIZE - SIGNATURE_SIZE
 _U32 = 2**32 - 1
 _U64 = 2**64 - 1
 
-# Raft message: type, flags (bit 0: reject), frm, to, term, log_term, index, commit,
+# Raft message: type, flags (bit 0: reject, bit 1: force), frm, to, term, log_term, index, commit,
 # reject_hint, number of entries; then each entry: term, index, kind, data length, data.
 _MESSAGE = struct.Struct("<BBIIQQQQQI")
 _ENTRY = struct.Struct("<QQBI")
 _REJECT = 0x01
+_FORCE = 0x02
 
 # Codes are fixed here, not taken from enum order, so a new member cannot shift old codes.
 _MSG_CODES: dict[MsgType, int] = {
@@ -194,12 +195,13 @@ def encode_message(msg: Message) -> bytes:
         _check_int(name, getattr(msg, name), _U32)
     for name in ("term", "log_term", "index", "commit", "reject_hint"):
         _check_int(name, getattr(msg, name), _U64)
-    if not isinstance(msg.reject, bool):
-        raise WireError("bad_value", f"reject = {msg.reject!r}, not a bool")
+    for name in ("reject", "force"):
+        if not isinstance(getattr(msg, name), bool):
+            raise WireError("bad_value", f"{name} = {getattr(msg, name)!r}, not a bool")
     parts = [
         _MESSAGE.pack(
             _MSG_CODES[msg.type],
-            _REJECT if msg.reject else 0,
+            (_REJECT if msg.reject else 0) | (_FORCE if msg.force else 0),
             msg.frm,
             msg.to,
             msg.term,
@@ -231,7 +233,7 @@ def decode_message(payload: bytes) -> Message:
     code, flags, frm, to, term, log_term, index, commit, hint, count = _MESSAGE.unpack_from(payload)
     if code not in _MSG_TYPES:
         raise WireError("bad_value", f"message type code {code}")
-    if flags & ~_REJECT:
+    if flags & ~(_REJECT | _FORCE):
         raise WireError("bad_value", f"unknown flag bits {flags:#04x}")
     off = _MESSAGE.size
     if count > (len(payload) - off) // _ENTRY.size:
@@ -251,7 +253,17 @@ def decode_message(payload: bytes) -> Message:
     if off != len(payload):
         raise WireError("trailing_bytes", f"{len(payload) - off} bytes after the last entry")
     return Message(
-        _MSG_TYPES[code], frm, to, term, log_term, index, tuple(entries), commit, bool(flags & _REJECT), hint
+        _MSG_TYPES[code],
+        frm,
+        to,
+        term,
+        log_term,
+        index,
+        tuple(entries),
+        commit,
+        bool(flags & _REJECT),
+        hint,
+        bool(flags & _FORCE),
     )
 
 

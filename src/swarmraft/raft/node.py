@@ -79,14 +79,18 @@ class RaftNode:
             self.election_elapsed = 0
             self.campaign()
 
-    def campaign(self) -> None:
-        """Start an election now (a pre-vote first when PreVote is on)."""
+    def campaign(self, force: bool = False) -> None:
+        """Start an election now: a pre-vote first when PreVote is on. With ``force`` (a leader
+        transfer, or a voter that found its leader faulty), no pre-vote, and the votes ask the
+        other nodes to answer even while they hear from a leader: the reason to depose it is
+        carried, so neither PreVote nor the leader lease stops the election. The vote
+        restriction still holds: only a node whose log is up to date can win."""
         if self.role == Role.LEADER:
             return
-        if self.config.pre_vote:
+        if self.config.pre_vote and not force:
             self._become_pre_candidate()
         else:
-            self._become_candidate()
+            self._become_candidate(force)
 
     def propose(self, data: bytes) -> int | None:
         """Propose an entry. The leader appends it and returns its index, or raises
@@ -153,7 +157,7 @@ class RaftNode:
                     and self.lead is not None
                     and self.election_elapsed < self.config.election_tick
                 )
-                if in_lease:
+                if in_lease and not m.force:
                     return  # we heard from a live leader recently: ignore the disruption
             if m.type == MsgType.PRE_VOTE or (m.type == MsgType.PRE_VOTE_RESP and not m.reject):
                 pass  # pre-votes never change our term
@@ -209,21 +213,20 @@ class RaftNode:
         self.randomized_timeout = self._draw_timeout()
         self._poll(MsgType.PRE_VOTE, self.term + 1)
 
-    def _become_candidate(self) -> None:
+    def _become_candidate(self, force: bool = False) -> None:
         self._reset(self.term + 1)
         self.role = Role.CANDIDATE
         self.vote = self.id
-        self._poll(MsgType.VOTE, self.term)
+        self._poll(MsgType.VOTE, self.term, force)
 
-    def _poll(self, kind: MsgType, term: int) -> None:
+    def _poll(self, kind: MsgType, term: int, force: bool = False) -> None:
         self.votes = {self.id: True}
         if self._tally() == "won":
             self._win(kind)
             return
+        last, last_term = self.log.last_index(), self.log.last_term()
         for p in self.config.peers:
-            self._send(
-                Message(kind, self.id, p, term, log_term=self.log.last_term(), index=self.log.last_index())
-            )
+            self._send(Message(kind, self.id, p, term, log_term=last_term, index=last, force=force))
 
     def _quorum(self) -> int:
         return len(self.config.members) // 2 + 1

@@ -44,7 +44,10 @@ class MsgType(StrEnum):
 class Message:
     """One Raft message. ``index``/``log_term`` are the previous entry for MsgApp, the last
     entry for votes, and the matched (or rejected) index for MsgAppResp. ``reject_hint`` on a
-    rejected MsgAppResp is the index the leader should try next.
+    rejected MsgAppResp is the index the leader should try next. ``force`` on MsgVote marks a
+    forced election (`RaftNode.campaign` with ``force=True``: a leader transfer, or a voter that
+    found its leader faulty): receivers answer it even while they hear from a leader (etcd's
+    campaignTransfer context).
 
     Treat it as immutable (it is not frozen only because frozen dataclasses are four times
     slower to build, and messages are the simulator's hot path)."""
@@ -59,6 +62,7 @@ class Message:
     commit: int = 0
     reject: bool = False
     reject_hint: int = 0
+    force: bool = False
 
 
 class Role(StrEnum):

@@ -47,9 +47,10 @@ from pydantic import Field
 from scipy.special import ndtri
 
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
+from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
 from swarmraft.estimation.rivals import Rivals, rival_sets
-from swarmraft.estimation.robust import Estimate, anchor_planes, robust_estimate
+from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
@@ -136,95 +137,6 @@ def _hypothesis_information(
     b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
     b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
     return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n)
-
-
-def mirror_ambiguous(
-    x: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    threshold: float,
-    prior: np.ndarray | None = None,
-    prior_sigma: float | None = None,
-) -> np.ndarray:
-    """Untrusted drones (T, n) whose position the data cannot tell from a mirror image:
-    fewer than 4 anchors (trusted drones ranging with them; 3 with a prior), or the
-    reflection of the estimate across the best-fit plane of its anchors (and across the
-    plane through their best-fit line, for near-collinear anchors) changes the chi-square of
-    its ranges (and prior) by less than ``threshold`` while lying further from it than the
-    linearised uncertainty covers (sqrt(threshold) sigma along the plane's normal: closer
-    than that, the protection level covers the mirror)."""
-    T, n, _ = x.shape
-    towards = np.swapaxes(ranges, 1, 2)  # d_ki: anchor k's measurement of drone i
-    anchors, cnt, mean, vec = anchor_planes(x, ranges, trusted)
-    w = anchors.astype(float)
-    has_prior = np.zeros((T, n), dtype=bool)
-    if prior is not None and prior_sigma:
-        has_prior = np.isfinite(prior).all(axis=2)
-    inv_s2 = 1.0 / noise.range_sigma**2
-
-    def chi2(pos: np.ndarray) -> np.ndarray:
-        dist = np.linalg.norm(pos[:, :, None, :] - x[:, None, :, :], axis=3)
-        q = np.where(anchors, (dist - np.nan_to_num(towards)) ** 2 * inv_s2, 0.0).sum(axis=2)
-        if has_prior.any():
-            q = q + np.where(
-                has_prior, np.sum((pos - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0
-            )
-        return q
-
-    base = chi2(x)
-    # the drone's own information from its anchors (and prior), for the linearised sigma
-    diff = x[:, :, None, :] - x[:, None, :, :]
-    u = diff / np.maximum(np.linalg.norm(diff, axis=3), 1e-300)[..., None]
-    info = np.einsum("tik,tika,tikb->tiab", w * inv_s2, u, u)
-    if has_prior.any():
-        info = info + np.where(has_prior, 1.0 / prior_sigma**2, 0.0)[..., None, None] * np.eye(3)
-    cov = np.linalg.inv(info + 1e-12 * max(float(np.abs(info).max(initial=0.0)), 1.0) * np.eye(3))
-    ambiguous = cnt < np.where(has_prior, 3, 4)
-    for axis in (0, 1):
-        normal = vec[..., :, axis]  # (T, i, 3): least and second-least spread
-        h = np.einsum("tia,tia->ti", x - mean, normal)
-        sigma_n = np.sqrt(np.maximum(np.einsum("tia,tiab,tib->ti", normal, cov, normal), 0.0))
-        # the mirror image, and the same moved into the minimum next to it (anchors that are
-        # only nearly coplanar put the second minimum beside the exact reflection, not on it)
-        mirror = x - 2 * h[..., None] * normal
-        refined = _refined(mirror, x, towards, anchors, inv_s2, prior, prior_sigma, has_prior)
-        # (the refined one only if it stayed on the mirror's side instead of coming back)
-        stayed = np.linalg.norm(refined - mirror, axis=2) < np.linalg.norm(refined - x, axis=2)
-        for other, kept in ((mirror, True), (refined, stayed)):
-            # distinct (beyond what the linearised uncertainty covers) and as good a fit
-            distinct = kept & (np.linalg.norm(other - x, axis=2) > np.sqrt(threshold) * sigma_n)
-            ambiguous |= distinct & (chi2(other) - base < threshold)
-    return ambiguous & ~trusted
-
-
-def _refined(
-    pos: np.ndarray,
-    x: np.ndarray,
-    towards: np.ndarray,
-    anchors: np.ndarray,
-    inv_s2: float,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
-    has_prior: np.ndarray,
-    iters: int = 6,
-) -> np.ndarray:
-    """Each drone's position (T, i, 3) after a few Gauss-Newton steps on its own ranges from
-    its anchors (fixed at x) and its prior, starting at ``pos``."""
-    d = np.nan_to_num(towards)
-    w = anchors * inv_s2
-    p_w = np.where(has_prior, 1.0 / prior_sigma**2, 0.0) if prior_sigma else np.zeros(has_prior.shape)
-    pr = np.zeros_like(pos) if prior is None else np.nan_to_num(prior)
-    for _ in range(iters):
-        diff = pos[:, :, None, :] - x[:, None, :, :]
-        dist = np.maximum(np.linalg.norm(diff, axis=3), 1e-9)
-        u = diff / dist[..., None]
-        r = dist - d
-        H = np.einsum("tik,tika,tikb->tiab", w, u, u) + p_w[..., None, None] * np.eye(3)
-        g = np.einsum("tik,tik,tika->tia", w, r, u) + p_w[..., None] * (pos - pr)
-        H = H + 1e-9 * (np.trace(H, axis1=2, axis2=3)[..., None, None] + 1e-12) * np.eye(3)
-        pos = pos - np.linalg.solve(H, g[..., None])[..., 0]
-    return pos
 
 
 def too_few_without_one(

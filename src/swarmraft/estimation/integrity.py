@@ -236,6 +236,7 @@ class Assessment:
     positions: np.ndarray
     sigma: np.ndarray
     alarm_cause: np.ndarray  # (T,) "", "residual test", "separation test" or "not converged"
+    gnss_q: np.ndarray  # (T, n) each trusted drone's whitened GNSS residual^2 (0 if untrusted)
 
 
 def assess(
@@ -318,7 +319,7 @@ def assess(
     vpl[weak] = np.inf
     status = np.where(alarm, "alarm", np.where(weak.any(axis=1), "degenerate", "ok")).astype(object)
     drone_status = np.where(alarm[:, None], "alarm", np.where(weak, "degenerate", "ok")).astype(object)
-    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str))
+    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq)
 
 
 def finish(
@@ -417,8 +418,9 @@ class _Problem:
         est = robust_estimate(rep, rng, tr, self.noise, pr, self.prior_sigma, starts, window=window)
         return est, assess(est, rep, rng, tr, self.noise, self.p, pr, self.prior_sigma)
 
-    def swaps(self, est: Estimate, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
-        """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`)."""
+    def swaps(self, est: Estimate, a: Assessment, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
+        """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`), ranked
+        by the GNSS residuals ``a`` already holds for ``est``."""
         return rival_sets(
             est.x,
             self.reported,
@@ -429,6 +431,7 @@ class _Problem:
             rows,
             self.prior,
             self.prior_sigma,
+            gnss_q=a.gnss_q,
         )
 
 
@@ -451,7 +454,7 @@ def _repaired_rows(
     rows = np.flatnonzero((a.alarm_cause == "residual test") & (status != "alarm") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = prob.swaps(est, trusted, rows)
+    r = prob.swaps(est, a, trusted, rows)
     cost = np.where(r.passed, r.cost, np.inf)
     order = np.lexsort((cost, r.owner))  # by trial, then cost
     owners, first = np.unique(r.owner[order], return_index=True)
@@ -470,7 +473,7 @@ def _rival_rows(
     rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = prob.swaps(est, trusted, rows)
+    r = prob.swaps(est, a, trusted, rows)
     d = r.x - a.positions[r.owner]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])

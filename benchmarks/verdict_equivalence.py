@@ -14,7 +14,10 @@ bit for bit (``exact``) or within ``--tol`` m with the same nan/inf pattern.
 Run:
   .venv/bin/python benchmarks/verdict_equivalence.py save /tmp/verdicts_before.npz
   .venv/bin/python benchmarks/verdict_equivalence.py check /tmp/verdicts_before.npz [--tol 1e-9]
-``check`` exits 1 if any verdict differs beyond the tolerance.
+``check`` exits 1 if any verdict differs beyond the tolerance. The small reference the
+tests compare against (tests/data/verdicts_small.npz, 9 cells of 2 trials) is made with
+  .venv/bin/python benchmarks/verdict_equivalence.py save tests/data/verdicts_small.npz \
+      --small --trials 2 --steps 0
 """
 
 from __future__ import annotations
@@ -43,12 +46,20 @@ EXACT_FIELDS = ("faulty", "trusted", "status", "drone_status")
 CLOSE_FIELDS = ("positions", "hpl", "vpl")
 
 
-def cells(trials: int) -> Iterator[tuple[str, SnapshotBatch]]:
-    """(name, batch) of every cell, each drawn from its own seed."""
+SMALL = {"sizes": (5, 9, 17), "attacks": ("jump",), "both_f": False}  # tests/test_verdicts.py
+
+
+def cells(
+    trials: int, sizes=SIZES, attacks=ATTACKS, both_f: bool = True
+) -> Iterator[tuple[str, SnapshotBatch]]:
+    """(name, batch) of every cell, each drawn from its own seed (``both_f``: f = n // 4 and
+    f_max, else f_max only)."""
     for gi, geometry in enumerate(GEOMETRIES):
         for ai, name in enumerate(ATTACKS):
-            for n in SIZES:
-                for f in sorted({n // 4, (n - 1) // 2}):
+            if name not in attacks:
+                continue
+            for n in sizes:
+                for f in sorted({n // 4, (n - 1) // 2} if both_f else {(n - 1) // 2}):
                     attack = name
                     if f < 1:
                         continue
@@ -105,10 +116,13 @@ def stacked(verdicts: list) -> dict[str, np.ndarray]:
     return fields(batch)
 
 
-def collect(trials: int, steps: int, detectors: tuple[str, ...] = tuple(DETECTORS)) -> dict[str, np.ndarray]:
-    """Every verdict field of every cell and detector, keyed 'cell/detector/field'."""
+def collect(
+    trials: int, steps: int, detectors: tuple[str, ...] = tuple(DETECTORS), small: bool = False
+) -> dict[str, np.ndarray]:
+    """Every verdict field of every cell and detector, keyed 'cell/detector/field'
+    (``small``: only the cells of `SMALL`)."""
     out: dict[str, np.ndarray] = {}
-    batches = list(cells(trials))
+    batches = list(cells(trials, **(SMALL if small else {})))
     for det in detectors:
         name = det.split("-")[0]
         for cell, batch in batches:
@@ -170,8 +184,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=8, help="trials per cell (60 cells)")
     ap.add_argument("--steps", type=int, default=40, help="bench snapshots verified one at a time")
     ap.add_argument("--tol", type=float, default=0.0, help="m; 0: bit for bit")
+    ap.add_argument("--small", action="store_true", help="9 cells (the reference of tests/test_verdicts.py)")
     args = ap.parse_args(argv)
-    new = collect(args.trials, args.steps)
+    new = collect(args.trials, args.steps, small=args.small)
     if args.action == "save":
         np.savez_compressed(args.path, **new)
         print(f"saved {len(new)} arrays to {args.path}")

@@ -165,14 +165,17 @@ def subset_separations(
     at_most: int,
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
+    skip: np.ndarray | None = None,
 ) -> np.ndarray:
     """Exact solution separations (T, j, n, 3): for trials with at most ``at_most`` trusted
     drones, each hypothesis "trusted drone j is faulty" re-solved from x (Levenberg-Marquardt
-    without j's report and the ranges it measured) minus x; nan elsewhere. Few trusted drones
-    are where a fault bends the problem most and the linearised separation misses it."""
+    without j's report and the ranges it measured) minus x; nan elsewhere, and in the trials
+    ``skip`` (T,) marks. Few trusted drones are where a fault bends the problem most and the
+    linearised separation misses it."""
     T, n, _ = x.shape
     out = np.full((T, n, n, 3), np.nan)
-    rows = np.flatnonzero(trusted.sum(axis=1) <= at_most)
+    small = trusted.sum(axis=1) <= at_most
+    rows = np.flatnonzero(small if skip is None else small & ~skip)
     t_idx, j_idx = np.nonzero(trusted[rows])
     if not t_idx.size:
         return out
@@ -267,7 +270,11 @@ def assess(
     prior_info = np.zeros((T, n, 3))
     if prior is not None and prior_sigma:
         prior_info = np.where(~trusted[..., None] & np.isfinite(prior), 1.0 / prior_sigma**2, 0.0)
-    exact = subset_separations(est.x, reported, ranges, trusted, noise, p.exact_below, prior, prior_sigma)
+    # the separations only decide the separation test: a trial whose residual test already
+    # failed is an alarm whatever they are, so its hypotheses are not re-solved
+    exact = subset_separations(
+        est.x, reported, ranges, trusted, noise, p.exact_below, prior, prior_sigma, skip=alarm
+    )
     step = max(1, _MEMORY_FLOATS // (n * (3 * n) ** 2))
     for lo in range(0, T, step):
         s = slice(lo, min(T, lo + step))

@@ -47,9 +47,10 @@ from pydantic import Field
 from scipy.special import ndtri
 
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
+from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams
 from swarmraft.estimation.rivals import Rivals, rival_sets
-from swarmraft.estimation.robust import Estimate, anchor_planes, robust_estimate
+from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
@@ -138,95 +139,6 @@ def _hypothesis_information(
     return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n)
 
 
-def mirror_ambiguous(
-    x: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    threshold: float,
-    prior: np.ndarray | None = None,
-    prior_sigma: float | None = None,
-) -> np.ndarray:
-    """Untrusted drones (T, n) whose position the data cannot tell from a mirror image:
-    fewer than 4 anchors (trusted drones ranging with them; 3 with a prior), or the
-    reflection of the estimate across the best-fit plane of its anchors (and across the
-    plane through their best-fit line, for near-collinear anchors) changes the chi-square of
-    its ranges (and prior) by less than ``threshold`` while lying further from it than the
-    linearised uncertainty covers (sqrt(threshold) sigma along the plane's normal: closer
-    than that, the protection level covers the mirror)."""
-    T, n, _ = x.shape
-    towards = np.swapaxes(ranges, 1, 2)  # d_ki: anchor k's measurement of drone i
-    anchors, cnt, mean, vec = anchor_planes(x, ranges, trusted)
-    w = anchors.astype(float)
-    has_prior = np.zeros((T, n), dtype=bool)
-    if prior is not None and prior_sigma:
-        has_prior = np.isfinite(prior).all(axis=2)
-    inv_s2 = 1.0 / noise.range_sigma**2
-
-    def chi2(pos: np.ndarray) -> np.ndarray:
-        dist = np.linalg.norm(pos[:, :, None, :] - x[:, None, :, :], axis=3)
-        q = np.where(anchors, (dist - np.nan_to_num(towards)) ** 2 * inv_s2, 0.0).sum(axis=2)
-        if has_prior.any():
-            q = q + np.where(
-                has_prior, np.sum((pos - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0
-            )
-        return q
-
-    base = chi2(x)
-    # the drone's own information from its anchors (and prior), for the linearised sigma
-    diff = x[:, :, None, :] - x[:, None, :, :]
-    u = diff / np.maximum(np.linalg.norm(diff, axis=3), 1e-300)[..., None]
-    info = np.einsum("tik,tika,tikb->tiab", w * inv_s2, u, u)
-    if has_prior.any():
-        info = info + np.where(has_prior, 1.0 / prior_sigma**2, 0.0)[..., None, None] * np.eye(3)
-    cov = np.linalg.inv(info + 1e-12 * max(float(np.abs(info).max(initial=0.0)), 1.0) * np.eye(3))
-    ambiguous = cnt < np.where(has_prior, 3, 4)
-    for axis in (0, 1):
-        normal = vec[..., :, axis]  # (T, i, 3): least and second-least spread
-        h = np.einsum("tia,tia->ti", x - mean, normal)
-        sigma_n = np.sqrt(np.maximum(np.einsum("tia,tiab,tib->ti", normal, cov, normal), 0.0))
-        # the mirror image, and the same moved into the minimum next to it (anchors that are
-        # only nearly coplanar put the second minimum beside the exact reflection, not on it)
-        mirror = x - 2 * h[..., None] * normal
-        refined = _refined(mirror, x, towards, anchors, inv_s2, prior, prior_sigma, has_prior)
-        # (the refined one only if it stayed on the mirror's side instead of coming back)
-        stayed = np.linalg.norm(refined - mirror, axis=2) < np.linalg.norm(refined - x, axis=2)
-        for other, kept in ((mirror, True), (refined, stayed)):
-            # distinct (beyond what the linearised uncertainty covers) and as good a fit
-            distinct = kept & (np.linalg.norm(other - x, axis=2) > np.sqrt(threshold) * sigma_n)
-            ambiguous |= distinct & (chi2(other) - base < threshold)
-    return ambiguous & ~trusted
-
-
-def _refined(
-    pos: np.ndarray,
-    x: np.ndarray,
-    towards: np.ndarray,
-    anchors: np.ndarray,
-    inv_s2: float,
-    prior: np.ndarray | None,
-    prior_sigma: float | None,
-    has_prior: np.ndarray,
-    iters: int = 6,
-) -> np.ndarray:
-    """Each drone's position (T, i, 3) after a few Gauss-Newton steps on its own ranges from
-    its anchors (fixed at x) and its prior, starting at ``pos``."""
-    d = np.nan_to_num(towards)
-    w = anchors * inv_s2
-    p_w = np.where(has_prior, 1.0 / prior_sigma**2, 0.0) if prior_sigma else np.zeros(has_prior.shape)
-    pr = np.zeros_like(pos) if prior is None else np.nan_to_num(prior)
-    for _ in range(iters):
-        diff = pos[:, :, None, :] - x[:, None, :, :]
-        dist = np.maximum(np.linalg.norm(diff, axis=3), 1e-9)
-        u = diff / dist[..., None]
-        r = dist - d
-        H = np.einsum("tik,tika,tikb->tiab", w, u, u) + p_w[..., None, None] * np.eye(3)
-        g = np.einsum("tik,tik,tika->tia", w, r, u) + p_w[..., None] * (pos - pr)
-        H = H + 1e-9 * (np.trace(H, axis1=2, axis2=3)[..., None, None] + 1e-12) * np.eye(3)
-        pos = pos - np.linalg.solve(H, g[..., None])[..., 0]
-    return pos
-
-
 def too_few_without_one(
     ranges: np.ndarray, trusted: np.ndarray, prior: np.ndarray | None = None, prior_sigma: float | None = None
 ) -> np.ndarray:
@@ -253,14 +165,17 @@ def subset_separations(
     at_most: int,
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
+    skip: np.ndarray | None = None,
 ) -> np.ndarray:
     """Exact solution separations (T, j, n, 3): for trials with at most ``at_most`` trusted
     drones, each hypothesis "trusted drone j is faulty" re-solved from x (Levenberg-Marquardt
-    without j's report and the ranges it measured) minus x; nan elsewhere. Few trusted drones
-    are where a fault bends the problem most and the linearised separation misses it."""
+    without j's report and the ranges it measured) minus x; nan elsewhere, and in the trials
+    ``skip`` (T,) marks. Few trusted drones are where a fault bends the problem most and the
+    linearised separation misses it."""
     T, n, _ = x.shape
     out = np.full((T, n, n, 3), np.nan)
-    rows = np.flatnonzero(trusted.sum(axis=1) <= at_most)
+    small = trusted.sum(axis=1) <= at_most
+    rows = np.flatnonzero(small if skip is None else small & ~skip)
     t_idx, j_idx = np.nonzero(trusted[rows])
     if not t_idx.size:
         return out
@@ -324,6 +239,7 @@ class Assessment:
     positions: np.ndarray
     sigma: np.ndarray
     alarm_cause: np.ndarray  # (T,) "", "residual test", "separation test" or "not converged"
+    gnss_q: np.ndarray  # (T, n) each trusted drone's whitened GNSS residual^2 (0 if untrusted)
 
 
 def assess(
@@ -354,7 +270,11 @@ def assess(
     prior_info = np.zeros((T, n, 3))
     if prior is not None and prior_sigma:
         prior_info = np.where(~trusted[..., None] & np.isfinite(prior), 1.0 / prior_sigma**2, 0.0)
-    exact = subset_separations(est.x, reported, ranges, trusted, noise, p.exact_below, prior, prior_sigma)
+    # the separations only decide the separation test: a trial whose residual test already
+    # failed is an alarm whatever they are, so its hypotheses are not re-solved
+    exact = subset_separations(
+        est.x, reported, ranges, trusted, noise, p.exact_below, prior, prior_sigma, skip=alarm
+    )
     step = max(1, _MEMORY_FLOATS // (n * (3 * n) ** 2))
     for lo in range(0, T, step):
         s = slice(lo, min(T, lo + step))
@@ -406,7 +326,7 @@ def assess(
     vpl[weak] = np.inf
     status = np.where(alarm, "alarm", np.where(weak.any(axis=1), "degenerate", "ok")).astype(object)
     drone_status = np.where(alarm[:, None], "alarm", np.where(weak, "degenerate", "ok")).astype(object)
-    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str))
+    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq)
 
 
 def finish(
@@ -505,8 +425,9 @@ class _Problem:
         est = robust_estimate(rep, rng, tr, self.noise, pr, self.prior_sigma, starts, window=window)
         return est, assess(est, rep, rng, tr, self.noise, self.p, pr, self.prior_sigma)
 
-    def swaps(self, est: Estimate, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
-        """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`)."""
+    def swaps(self, est: Estimate, a: Assessment, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
+        """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`), ranked
+        by the GNSS residuals ``a`` already holds for ``est``."""
         return rival_sets(
             est.x,
             self.reported,
@@ -517,6 +438,7 @@ class _Problem:
             rows,
             self.prior,
             self.prior_sigma,
+            gnss_q=a.gnss_q,
         )
 
 
@@ -539,7 +461,7 @@ def _repaired_rows(
     rows = np.flatnonzero((a.alarm_cause == "residual test") & (status != "alarm") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = prob.swaps(est, trusted, rows)
+    r = prob.swaps(est, a, trusted, rows)
     cost = np.where(r.passed, r.cost, np.inf)
     order = np.lexsort((cost, r.owner))  # by trial, then cost
     owners, first = np.unique(r.owner[order], return_index=True)
@@ -558,7 +480,7 @@ def _rival_rows(
     rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
     if not rows.size:
         return None
-    r = prob.swaps(est, trusted, rows)
+    r = prob.swaps(est, a, trusted, rows)
     d = r.x - a.positions[r.owner]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])

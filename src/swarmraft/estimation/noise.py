@@ -5,6 +5,7 @@ preset) still gives finite weights."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -47,9 +48,9 @@ class NoiseModel:
         common = None if gc is None else np.array([gc[0] ** 2, gc[0] ** 2, gc[1] ** 2], float)
         return cls(gnss_covariance(max(h, floor), max(v, floor)), max(float(rs), floor), common)
 
-    @property
+    @cached_property
     def whitener(self) -> np.ndarray:
-        """W with W^T W = gnss_cov^-1: W e is a whitened GNSS error."""
+        """W with W^T W = gnss_cov^-1: W e is a whitened GNSS error (computed once per model)."""
         return np.linalg.cholesky(np.linalg.inv(self.gnss_cov)).T
 
     def los_variance(self, u: np.ndarray) -> np.ndarray:

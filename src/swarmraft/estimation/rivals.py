@@ -53,11 +53,14 @@ def rival_sets(
     prior_sigma: float | None = None,
     swaps: int = 2,
     iters: int = 10,
+    gnss_q: np.ndarray | None = None,
 ) -> Rivals:
     """The rivals of every drone e flagged in the trials ``rows`` (indices): the chosen set
     with e trusted instead of one of the ``swaps`` trusted drones whose GNSS reports fit the
-    chosen estimate x (T, n, 3) worst; see the module docstring."""
-    _, gnss_q, _, _ = residual_statistics(x, reported, ranges, trusted, noise)
+    chosen estimate x (T, n, 3) worst; see the module docstring. ``gnss_q`` (T, n): those
+    fits (`joint.residual_statistics` at x), if the caller has them."""
+    if gnss_q is None:
+        _, gnss_q, _, _ = residual_statistics(x, reported, ranges, trusted, noise)
     k = min(swaps, int(trusted[rows].sum(axis=1).min())) if len(rows) else 0
     worst = np.argsort(np.where(trusted, -gnss_q, np.inf), axis=1)[:, :k]  # (T, k)
     t_idx, e_idx = np.nonzero(~trusted[rows])

@@ -107,12 +107,15 @@ def robust_estimate(
     # each drone's own cost with the anchors where the best start put them: the same frame
     # for every start (a start that moved the whole swarm is not a second minimum of one drone)
     anchors = X[best, t]
-    q = np.stack(
-        [
-            _own_cost(_placed(anchors, X[k], trusted), ranges, trusted, noise.range_sigma, pr, prior_sigma)
-            for k in range(S)
-        ]
-    )
+    # every start at once: (S, T, ...) as (S T, ...)
+    q = _own_cost(
+        _placed(np.tile(anchors, (S, 1, 1)), X.reshape(S * T, n, 3), np.tile(trusted, (S, 1))),
+        np.tile(ranges, (S, 1, 1)),
+        np.tile(trusted, (S, 1)),
+        noise.range_sigma,
+        None if pr is None else np.tile(pr, (S, 1, 1)),
+        prior_sigma,
+    ).reshape(S, T, n)
     q = np.where(conv[..., None], q, np.inf)
     pick = np.argmin(q, axis=0)  # (T, n)
     mixed = np.flatnonzero(((pick != best[:, None]) & ~trusted).any(axis=1))

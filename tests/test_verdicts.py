@@ -1,0 +1,25 @@
+"""Every detector's verdicts on a fixed set of seeded trials are those of the reference file
+(tests/data/verdicts_small.npz, made with benchmarks/verdict_equivalence.py from the code
+before the step-time work): a change meant only to make a detector faster must leave its
+flags and statuses as they were and its positions and protection levels within 1e-9 m.
+A change meant to alter verdicts regenerates the file (the command is in
+benchmarks/verdict_equivalence.py) and says why in its commit."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from verdict_equivalence import collect, compare  # noqa: E402
+
+
+def test_verdicts_are_those_of_the_reference():
+    with np.load(ROOT / "tests" / "data" / "verdicts_small.npz", allow_pickle=False) as z:
+        ref = {k: z[k] for k in z.files}
+    new = collect(2, 0, small=True)
+    assert len(ref) == len(new) == 315
+    statuses = np.concatenate([v for k, v in ref.items() if k.endswith("/status")])
+    assert {"ok", "alarm", "degenerate"} <= set(statuses.tolist())  # the cells are not all one kind
+    assert compare(ref, new, tol=1e-9) == []

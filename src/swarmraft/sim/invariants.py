@@ -26,6 +26,8 @@ INVARIANTS = (
     "durable-term-vote",  # a persisted term never goes back; one persisted vote per term
     "durable-before-send",  # a granted vote, an acknowledged entry: on disk before the answer leaves
     "state-machine-safety",  # no two nodes apply different entries at one index
+    "read-linearizable",  # a ReadIndex answer covers every commit made before the read began
+    "transfer-caught-up",  # MsgTimeoutNow goes only to a node holding the leader's whole log
 )
 
 
@@ -219,6 +221,39 @@ class InvariantChecker:
                 now,
                 "durable-before-send",
                 f"node {m.frm} acknowledges index {m.index} with {storage.last_index()} entries on disk",
+            )
+
+    def read_answered(self, now: float, node_id: int, ctx: int, index: int, floor: int, applied: int) -> None:
+        """Linearizable reads: the read index of an answer is at least the highest index any
+        node had committed when the read was asked (``floor``), and the answering node has
+        applied up to it."""
+        if index < floor:
+            self.fail(
+                now,
+                "read-linearizable",
+                f"node {node_id} answered read {ctx} at index {index}, but index {floor} was committed "
+                "before the read began",
+            )
+        if applied < index:
+            self.fail(
+                now,
+                "read-linearizable",
+                f"node {node_id} answered read {ctx} at index {index} having applied only {applied}",
+            )
+
+    def timeout_now(self, now: float, m: Message, target: Storage) -> None:
+        """A leader transfer's MsgTimeoutNow goes only to a node that holds (on disk) the
+        leader's last entry (``m.index``, ``m.log_term``): one that does not would start an
+        election it cannot win while the leader refuses proposals."""
+        if target.initial_state().term > m.term:
+            return  # the target moved on to a later term: the message is stale and ignored
+        last = target.last_index()
+        if m.index > last or target.term(m.index) != m.log_term:
+            self.fail(
+                now,
+                "transfer-caught-up",
+                f"leader {m.frm} sent MsgTimeoutNow to node {m.to}, whose log ends at {last}, before it "
+                f"held the leader's last entry {m.index} (term {m.log_term})",
             )
 
     def applied_entry(self, now: float, node_id: int, entry: Entry) -> None:

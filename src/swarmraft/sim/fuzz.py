@@ -368,13 +368,16 @@ def _settle(
 
     def stable() -> bool:
         # a leader among its voters, its configuration committed (a leader that removed itself
-        # steps down once that commits), every member following it in its term
+        # steps down once that commits), no transfer under way, every member following it in
+        # its term
         lead = c.leader()
         if lead is None:
             return False
         node = c.nodes[lead]
         assert node is not None
         if lead not in node.conf_state.voters or node.log.committed < node.confs.last_index:
+            return False
+        if node.lead_transferee is not None:  # a transfer from the fault phase still runs
             return False
         return all(
             (m := c.nodes[i]) is not None and m.term == node.term and m.lead == lead

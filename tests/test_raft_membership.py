@@ -2,6 +2,7 @@
 (issue 12 item 5), in the simulator and on the bare core."""
 
 import random
+import re
 
 import pytest
 
@@ -303,3 +304,17 @@ def test_seeds_without_membership_run_exactly_as_before():
     a = run_seed(3, FuzzConfig(membership=0.0))
     b = run_seed(3, FuzzConfig(membership=0.0, p_member=0.9))
     assert a == b and a.conf_changes == 0
+
+
+def test_raft_fuzz_membership_flag_runs_membership_in_every_seed():
+    from click.testing import CliRunner
+
+    from swarmraft.cli import main
+
+    r = CliRunner().invoke(main, ["raft-fuzz", "--membership", "--seeds", "3", "--seed-start", "100"])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())  # the console wraps long lines
+    m = re.search(r"(\d+) configuration changes, (\d+) reads answered, \d+ s: no violation", out)
+    assert m and int(m.group(1)) > 0 and int(m.group(2)) > 0, out
+    r = CliRunner().invoke(main, ["raft-fuzz", "--no-membership", "--seeds", "2"])
+    assert "0 configuration changes, 0 reads answered" in " ".join(r.output.split()), r.output

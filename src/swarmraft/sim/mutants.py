@@ -216,7 +216,6 @@ MUTANTS: tuple[Mutant, ...] = (
         "node.py",
         "        if self.id not in self.conf_state.voters and self.log.committed >= self.confs.last_index:",
         "        if False:",
-        only_by="liveness",
     ),
     Mutant(
         "timeout-not-randomised",

@@ -104,8 +104,7 @@ class RaftNode:
         self.election_elapsed += 1
         if self.election_elapsed >= self.randomized_timeout:
             self.election_elapsed = 0
-            if self.id in self.conf_state.voters:  # learners and removed nodes never campaign
-                self.campaign()
+            self.campaign()  # a learner or a removed node does nothing
 
     def campaign(self, force: bool = False) -> None:
         """Start an election now: a pre-vote first when PreVote is on. With ``force`` (a leader
@@ -653,8 +652,7 @@ class RaftNode:
         )
 
     def _handle_timeout_now(self, m: Message) -> None:
-        if self.role != Role.LEADER and self.id in self.conf_state.voters:
-            self.campaign(force=True)
+        self.campaign(force=True)  # nothing on a leader, a learner or a removed node
 
     # -- reads ----------------------------------------------------------------------------
     def read_index(self, ctx: int) -> None:

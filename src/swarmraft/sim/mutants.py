@@ -189,11 +189,11 @@ MUTANTS: tuple[Mutant, ...] = (
         only_by="transfer-caught-up",
     ),
     Mutant(
-        "removed-node-votes",
-        "a candidate counts the votes of nodes that are not voters in its configuration",
+        "learner-campaigns",
+        "a learner or a removed node campaigns like a voter when its election timeout ends",
         "node.py",
-        "        granted = sum(v for p, v in self.votes.items() if p in voters)",
-        "        granted = sum(self.votes.values())",
+        "        if self.role == Role.LEADER or self.id not in self.conf_state.voters:",
+        "        if self.role == Role.LEADER:",
     ),
     Mutant(
         "read-before-quorum",

@@ -318,3 +318,25 @@ def test_raft_fuzz_membership_flag_runs_membership_in_every_seed():
     assert m and int(m.group(1)) > 0 and int(m.group(2)) > 0, out
     r = CliRunner().invoke(main, ["raft-fuzz", "--no-membership", "--seeds", "2"])
     assert "0 configuration changes, 0 reads answered" in " ".join(r.output.split()), r.output
+
+
+def test_the_conf_change_checker_catches_a_second_pending_change_and_an_early_one():
+    c, k = with_learner()
+    lead = c.leader()
+    node = c.nodes[lead]
+    node._append_and_broadcast([ConfChange(PROMOTE, k).encode()], kind=EntryKind.CONF_CHANGE)
+    node._append_and_broadcast([ConfChange(REMOVE, k).encode()], kind=EntryKind.CONF_CHANGE)
+    with pytest.raises(InvariantViolation, match="conf-change-rule: leader .* while the one at"):
+        c._process(lead)
+    # a new leader before its no-op commits
+    c = Cluster(3, seed=3)
+    lead = elected(c)
+    c.isolate(lead)
+    assert c.run_until(lambda: c.leader() not in (None, lead), 3000)
+    new = c.leader()
+    c.crash(lead)
+    c.heal()
+    c.partition([new])  # alone: its no-op cannot commit
+    c.nodes[new]._append_and_broadcast([ConfChange(REMOVE, lead).encode()], kind=EntryKind.CONF_CHANGE)
+    with pytest.raises(InvariantViolation, match="before committing an entry of its term"):
+        c._process(new)

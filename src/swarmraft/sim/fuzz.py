@@ -54,8 +54,9 @@ class FuzzConfig:
     so the other seeds run exactly as without it), every ``step_ms`` a membership operation
     with probability ``p_member`` (a node joins as a learner (a new one, up to 9 nodes, or one
     removed earlier), a learner is promoted, a voter (the leader in a third of the removals)
-    or a learner removed, leadership transferred) and a linearizable read at a random node
-    with probability ``p_read``."""
+    or a learner removed, leadership transferred) and with probability ``p_read`` a
+    linearizable read: at a random node, or (half the time) at every node that believes it
+    leads, a deposed one too."""
 
     nodes: int | None = None
     fault_ms: float = 3000.0
@@ -285,7 +286,12 @@ def _membership(c: Cluster, rng: random.Random, cfg: FuzzConfig, stats: dict[str
     """At most one membership operation and one read; refused ones (no leader, a change
     pending, a learner not caught up, ...) are part of the test."""
     if rng.random() < cfg.p_read:
-        c.read_index(rng.choice(c.ids))
+        if rng.random() < 0.5:
+            c.read_index(rng.choice(c.ids))
+        else:  # at every node that believes it leads: a deposed leader must not answer
+            for i in c.alive_ids():
+                if c.nodes[i].role == "leader":  # type: ignore[union-attr]
+                    c.read_index(i)
     if rng.random() < cfg.p_member:
         # now and then two at once: the second must be refused while the first is pending
         for _ in range(2 if rng.random() < 0.3 else 1):

@@ -28,6 +28,8 @@ INVARIANTS = (
     "state-machine-safety",  # no two nodes apply different entries at one index
     "read-linearizable",  # a ReadIndex answer covers every commit made before the read began
     "transfer-caught-up",  # MsgTimeoutNow goes only to a node holding the leader's whole log
+    "conf-change-rule",  # a leader appends a configuration change only with the previous one
+    # committed and an entry of its own term committed (single-server changes, thesis 4.1)
 )
 
 
@@ -144,6 +146,8 @@ class InvariantChecker:
                         f"leader {nid} of term {node.term} lacks committed entries up to {c}",
                     )
                 track.leader_term = node.term
+            if dirty is not None and node.confs.last_index >= max(dirty, track.leader_last + 1):
+                self._check_conf_rule(now, node, max(dirty, track.leader_last + 1))
             track.leader_last = last
         else:
             track.leader_term = None
@@ -201,6 +205,31 @@ class InvariantChecker:
                     f"node {nid} persisted commit index went back from {prev.commit} to {hard.commit}",
                 )
         self.hard[nid] = hard
+
+    def _check_conf_rule(self, now: float, node: RaftNode, first_new: int) -> None:
+        """The leader appended entries from ``first_new`` on, configuration changes among them:
+        each needs the configuration entry before it committed, and an entry of the leader's
+        term committed (one change at a time; Ongaro's fix to single-server changes)."""
+        changes = [i for i, _, _ in node.confs.changes]
+        commit = node.log.committed
+        for k, i in enumerate(changes):
+            if i < first_new:
+                continue
+            prev = changes[k - 1] if k > 0 else node.confs.base_index
+            if prev > commit:
+                self.fail(
+                    now,
+                    "conf-change-rule",
+                    f"leader {node.id} appended a configuration change at {i} while the one at {prev} "
+                    f"is not committed (commit {commit})",
+                )
+            if node.log.term(commit) != node.term:
+                self.fail(
+                    now,
+                    "conf-change-rule",
+                    f"leader {node.id} of term {node.term} appended a configuration change at {i} before "
+                    f"committing an entry of its term (commit {commit}, of term {node.log.term(commit)})",
+                )
 
     def sending(self, now: float, m: Message, storage: Storage) -> None:
         """Durable before sent: a granted vote is on disk (that term, that candidate) before the

@@ -373,15 +373,16 @@ def _settle(
         return max(c.nodes[i].term for i in members())  # type: ignore[union-attr]
 
     def stable() -> bool:
-        # a leader among its voters, its configuration committed (a leader that removed itself
-        # steps down once that commits), no transfer under way, every member following it in
-        # its term
+        # a leader among its voters (one that appended its own removal is not: it steps down
+        # once that commits), no transfer under way, every member following it in its term.
+        # Its configuration need not be committed yet: on a long log caught up one entry per
+        # append that can take longer than the window
         lead = c.leader()
         if lead is None:
             return False
         node = c.nodes[lead]
         assert node is not None
-        if lead not in node.conf_state.voters or node.log.committed < node.confs.last_index:
+        if lead not in node.conf_state.voters:
             return False
         if node.lead_transferee is not None:  # a transfer from the fault phase still runs
             return False

@@ -137,3 +137,12 @@ def test_the_relay_is_needed_only_for_what_loopback_cannot_do():
     assert not needs_relay(
         Scenario(drones=5, duration_s=10, fault=[{"kind": "pause", "at_s": 1, "for_s": 1}])
     )
+
+
+def test_transfer_leader_is_listed_as_not_applied_and_touches_no_process(tmp_path):
+    run = swarm_with(tmp_path, [{"kind": "transfer-leader", "at_s": 4, "drone": 2}])
+    acts = run.actions()
+    assert [(a.at_s, a.kind) for a in acts] == [(4, "transfer-leader")]
+    said = acts[0].run()
+    assert said == "transfer-leader: not applied (the drone processes take no commands; simulator only)"
+    assert all(log == [] for log in run.logs.values())

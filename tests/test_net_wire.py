@@ -86,6 +86,17 @@ def test_every_message_type_has_a_wire_code(t):
     assert wire.decode_message(wire.encode_message(msg)) == msg
 
 
+def test_membership_codes_are_fixed():
+    # the codes of the membership messages and entries (issue 12): a peer of another version
+    # must read them the same
+    for t, code in ((MsgType.TIMEOUT_NOW, 10), (MsgType.READ_INDEX, 11), (MsgType.READ_INDEX_RESP, 12)):
+        assert wire.encode_message(Message(t, 1, 2, 3))[0] == code
+    e = Entry(1, 2, b"promote 4", EntryKind.CONF_CHANGE)
+    raw = wire.encode_message(Message(MsgType.APP, 1, 2, 3, entries=(e,)))
+    assert raw[54 + 16] == 2
+    assert wire.decode_message(raw).entries == (e,)
+
+
 @given(reports())
 @settings(max_examples=200)
 def test_every_signed_report_round_trips_bit_for_bit(report):
@@ -209,7 +220,7 @@ def raft_payload() -> bytearray:
 
 
 def test_unknown_message_type_entry_kind_and_flags_are_refused():
-    for code in (0, 10, 255):
+    for code in (0, 13, 255):
         p = raft_payload()
         p[0] = code
         assert reason(wire.decode_message, bytes(p)) == "bad_value"

@@ -59,6 +59,12 @@ _CHECKS = (*INVARIANTS, "liveness")  # what --without may switch off
     "--check-quorum/--no-check-quorum", default=None, help="CheckQuorum on or off [default: drawn per seed]"
 )
 @click.option(
+    "--membership/--no-membership",
+    default=None,
+    help="membership changes, leader transfers and linearizable reads in every seed, or in none "
+    "[default: in half the seeds]",
+)
+@click.option(
     "--without",
     type=click.Choice(_CHECKS),
     multiple=True,
@@ -79,15 +85,28 @@ _CHECKS = (*INVARIANTS, "liveness")  # what --without may switch off
     help="with --mutants: only this mutant (repeatable)",
 )
 def raft_fuzz(
-    seeds, seed_start, nodes, fault_ms, loss, max_entries, pre_vote, check_quorum, without, mutants, only
+    seeds,
+    seed_start,
+    nodes,
+    fault_ms,
+    loss,
+    max_entries,
+    pre_vote,
+    check_quorum,
+    membership,
+    without,
+    mutants,
+    only,
 ) -> None:
     """Randomised Raft fault runs in the simulator, every safety invariant checked after
     every event: 3-7 nodes with PreVote and CheckQuorum drawn per seed; crashes, crashes
     restarted at once and crashes between saving a Ready and sending it; partitions, one-way
     cuts, loss, duplication, reordering by up to 400 ms; appends of 1-4 entries, and in one
-    seed in ten logs of 1000-3000 entries. Once the faults stop, liveness (with PreVote: a
-    leader every node follows within two election timeouts, then no term change) and
-    convergence (every committed entry on every node).
+    seed in ten logs of 1000-3000 entries; in half the seeds, membership changes (nodes join
+    as learners, learners are promoted, voters and the leader removed), leader transfers and
+    linearizable reads. Once the faults stop, liveness (with PreVote: a leader among its
+    voters that every member follows within two election timeouts, then no term change) and
+    convergence (every committed entry on every member).
 
     Exits 1 and prints each failing seed if any run fails.
 
@@ -112,9 +131,10 @@ def raft_fuzz(
         pre_vote=pre_vote,
         check_quorum=check_quorum,
         without=frozenset(without),
+        membership=0.5 if membership is None else float(membership),
     )
     failed = []
-    events = longest = 0
+    events = longest = changes = reads = 0
     t0 = time.perf_counter()
     prog, start = progress_bar("raft-fuzz", "seeds")
     with prog:
@@ -122,13 +142,16 @@ def raft_fuzz(
         for r in run_seeds(seed_start, seeds, cfg):
             events += r.events
             longest = max(longest, r.last_index)
+            changes += r.conf_changes
+            reads += r.reads
             if not r.ok:
                 failed.append(r)
                 prog.console.print(f"[red]FAIL[/] seed {r.seed} ({r.invariant}): {r.error}")
             advance(1)
     console.print(
         f"{seeds} seeds ({seed_start}..{seed_start + seeds - 1}), {fault_ms:.0f} ms of faults each, "
-        f"{events} events checked, logs up to {longest} entries, {time.perf_counter() - t0:.0f} s: "
+        f"{events} events checked, logs up to {longest} entries, {changes} configuration changes, "
+        f"{reads} reads answered, {time.perf_counter() - t0:.0f} s: "
         + (
             "no violation"
             if not failed

@@ -122,6 +122,9 @@ class LocalSwarm:
                 who = [f.drone] if f.drone is not None else list(range(1, self.n + 1))
                 acts.append(Action(f.at_s, f.kind, lambda w=who, s=f.for_s: self._pause(w, s)))
                 acts.append(Action(f.at_s + f.for_s, "resume", lambda w=who: self._resume(w)))
+            elif f.kind == "transfer-leader":
+                note = "transfer-leader: not applied (the drone processes take no commands; simulator only)"
+                acts.append(Action(f.at_s, f.kind, lambda n=note: n))
             else:
                 acts.append(Action(f.at_s, f.kind, lambda f=f: self._network_fault(f)))
         return sorted(acts, key=lambda a: a.at_s)

@@ -63,9 +63,12 @@ _MSG_CODES: dict[MsgType, int] = {
     MsgType.PRE_VOTE_RESP: 7,
     MsgType.HEARTBEAT: 8,
     MsgType.HEARTBEAT_RESP: 9,
+    MsgType.TIMEOUT_NOW: 10,
+    MsgType.READ_INDEX: 11,
+    MsgType.READ_INDEX_RESP: 12,
 }
 _MSG_TYPES = {code: t for t, code in _MSG_CODES.items()}
-_KIND_CODES: dict[EntryKind, int] = {EntryKind.NORMAL: 0, EntryKind.NOOP: 1}
+_KIND_CODES: dict[EntryKind, int] = {EntryKind.NORMAL: 0, EntryKind.NOOP: 1, EntryKind.CONF_CHANGE: 2}
 _ENTRY_KINDS = {code: k for k, code in _KIND_CODES.items()}
 
 

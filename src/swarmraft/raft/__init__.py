@@ -2,27 +2,36 @@
 global randomness. Knows nothing of drones."""
 
 from swarmraft.raft.log import RaftLog, RaftSafetyError
+from swarmraft.raft.membership import ConfChange, ConfChangeType, ConfState
 from swarmraft.raft.node import RaftNode
 from swarmraft.raft.progress import Inflights, Progress
 from swarmraft.raft.storage import MemoryStorage, SQLiteStorage, Storage
 from swarmraft.raft.types import (
+    ConfChangeRefused,
     Entry,
     EntryKind,
     HardState,
+    LeaderTransferring,
     Message,
     MsgType,
     NotLeader,
     ProposalDropped,
     RaftConfig,
+    ReadState,
     Ready,
     Role,
     Status,
 )
 
 __all__ = [
+    "ConfChange",
+    "ConfChangeRefused",
+    "ConfChangeType",
+    "ConfState",
     "Entry",
     "EntryKind",
     "HardState",
+    "LeaderTransferring",
     "Inflights",
     "MemoryStorage",
     "Message",
@@ -34,6 +43,7 @@ __all__ = [
     "RaftLog",
     "RaftNode",
     "RaftSafetyError",
+    "ReadState",
     "Ready",
     "Role",
     "SQLiteStorage",

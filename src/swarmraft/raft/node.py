@@ -10,6 +10,12 @@ entries the follower still lacks, pipelines appends within a window per follower
 proposals beyond a cap on uncommitted bytes (`ProposalDropped`). A new commit index travels
 with the next append or heartbeat, never in a message of its own, and a follower that gets
 appends gets no heartbeats until it has heard nothing for ``flow_heartbeat_tick`` ticks.
+
+Membership (`raft.membership`: learners, single-server changes taking effect on append),
+leader transfer (`transfer_leader`, MsgTimeoutNow) and linearizable reads (`read_index`, the
+thesis's section 6.4) live in the sections marked "membership", "transfer" and "reads". The
+configuration is ``conf_state``; it is rebuilt on restart from the configuration entries in
+storage, after the bootstrap one in `RaftConfig` (a snapshot would carry it instead).
 """
 
 from __future__ import annotations
@@ -18,17 +24,21 @@ import random
 from collections import deque
 
 from swarmraft.raft.log import RaftLog
+from swarmraft.raft.membership import ConfChange, ConfChangeType, ConfLog, ConfState
 from swarmraft.raft.progress import Inflights, Progress
 from swarmraft.raft.storage import Storage
 from swarmraft.raft.types import (
+    ConfChangeRefused,
     Entry,
     EntryKind,
     HardState,
+    LeaderTransferring,
     Message,
     MsgType,
     NotLeader,
     ProposalDropped,
     RaftConfig,
+    ReadState,
     Ready,
     Role,
     Status,
@@ -61,6 +71,23 @@ class RaftNode:
         # the leader's entries of its term not yet committed: (index, payload bytes), in order
         self._uncommitted: deque[tuple[int, int]] = deque()
         self._uncommitted_bytes = 0
+        # membership: the bootstrap configuration, then every configuration entry in the log
+        boot = config.voters if config.voters is not None else config.members
+        self.confs = ConfLog(ConfState(tuple(sorted(boot)), tuple(sorted(config.learners))))
+        self.confs.add(storage.conf_entries())
+        self._term_start = 0  # a leader's first index of its term (its no-op)
+        # transfer: the node a leader hands over to, and ticks since it began
+        self.lead_transferee: int | None = None
+        self._transfer_elapsed = 0
+        # reads: a leader's read rounds (each heartbeat carries the latest), the round each
+        # voter last acknowledged, reads waiting for a quorum [(round, index, ctx, asker)],
+        # reads waiting for the term's first commit [(ctx, asker)]; answered reads waiting to
+        # be applied (every role)
+        self._read_round = 0
+        self._acked_round: dict[int, int] = {}
+        self._pending_reads: deque[tuple[int, int, int, int]] = deque()
+        self._early_reads: list[tuple[int, int]] = []
+        self._read_states: list[ReadState] = []
 
     # -- public API -----------------------------------------------------------------------
     @property
@@ -86,15 +113,16 @@ class RaftNode:
         self.election_elapsed += 1
         if self.election_elapsed >= self.randomized_timeout:
             self.election_elapsed = 0
-            self.campaign()
+            self.campaign()  # a learner or a removed node does nothing
 
     def campaign(self, force: bool = False) -> None:
         """Start an election now: a pre-vote first when PreVote is on. With ``force`` (a leader
         transfer, or a voter that found its leader faulty), no pre-vote, and the votes ask the
         other nodes to answer even while they hear from a leader: the reason to depose it is
         carried, so neither PreVote nor the leader lease stops the election. The vote
-        restriction still holds: only a node whose log is up to date can win."""
-        if self.role == Role.LEADER:
+        restriction still holds: only a node whose log is up to date can win. A node that is
+        not a voter (a learner, a removed node) does nothing."""
+        if self.role == Role.LEADER or self.id not in self.conf_state.voters:
             return
         if self.config.pre_vote and not force:
             self._become_pre_candidate()
@@ -108,6 +136,8 @@ class RaftNode:
         if not isinstance(data, bytes | bytearray):
             raise TypeError("propose: data must be bytes")
         if self.role == Role.LEADER:
+            if self.lead_transferee is not None:
+                raise LeaderTransferring(self.id, self.lead_transferee)
             self._check_uncommitted(len(data))
             return self._append_and_broadcast([bytes(data)])
         if self.role == Role.FOLLOWER and self.lead is not None and self.config.forward_proposals:
@@ -125,6 +155,7 @@ class RaftNode:
             or self.vote != p.vote
             or log.committed != p.commit
             or (log.committed > log.applied and log.stable_last() > log.applied)
+            or (self._read_states and any(r.index <= log.applied for r in self._read_states))
         )
 
     def ready(self) -> Ready | None:
@@ -137,6 +168,9 @@ class RaftNode:
             entries=self.log.unstable_entries(),
             committed=tuple(self.log.next_committed()),
             messages=tuple(self.msgs),
+            read_states=tuple(r for r in self._read_states if r.index <= self.log.applied)
+            if self._read_states
+            else (),
         )
 
     def advance(self, rd: Ready) -> None:
@@ -148,6 +182,9 @@ class RaftNode:
         if rd.committed:
             self.log.applied_to(rd.committed[-1].index)
         del self.msgs[: len(rd.messages)]
+        if rd.read_states:
+            done = set(rd.read_states)
+            self._read_states = [r for r in self._read_states if r not in done]
 
     def step(self, m: Message) -> None:
         if m.to != self.id:
@@ -187,6 +224,10 @@ class RaftNode:
 
         if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
             self._handle_vote_request(m)
+        elif m.type == MsgType.TIMEOUT_NOW:
+            self._handle_timeout_now(m)
+        elif m.type in (MsgType.READ_INDEX, MsgType.READ_INDEX_RESP):
+            self._step_read(m)
         elif self.role == Role.LEADER:
             self._step_leader(m)
         elif self.role in (Role.CANDIDATE, Role.PRE_CANDIDATE):
@@ -209,6 +250,10 @@ class RaftNode:
         self.election_elapsed = 0
         self.randomized_timeout = self._draw_timeout()
         self.votes = {}
+        self.lead_transferee = None
+        self._pending_reads.clear()  # a read not answered is dropped: the asker retries
+        self._early_reads.clear()
+        self._acked_round.clear()
 
     def _become_follower(self, term: int, lead: int | None) -> None:
         self._reset(term)
@@ -236,15 +281,18 @@ class RaftNode:
             self._win(kind)
             return
         last, last_term = self.log.last_index(), self.log.last_term()
-        for p in self.config.peers:
+        for p in self.conf_state.voters:
+            if p == self.id:
+                continue
             self._send(Message(kind, self.id, p, term, log_term=last_term, index=last, force=force))
 
     def _quorum(self) -> int:
-        return len(self.config.members) // 2 + 1
+        return len(self.conf_state.voters) // 2 + 1
 
     def _tally(self) -> str:
-        granted = sum(self.votes.values())
-        rejected = len(self.votes) - granted
+        voters = self.conf_state.voters
+        granted = sum(v for p, v in self.votes.items() if p in voters)
+        rejected = sum(not v for p, v in self.votes.items() if p in voters)
         if granted >= self._quorum():
             return "won"
         if rejected >= self._quorum():
@@ -261,27 +309,33 @@ class RaftNode:
         self._reset(self.term)
         self.role = Role.LEADER
         self.lead = self.id
-        last, cfg = self.log.last_index(), self.config
-        self.prs = {
-            p: Progress(Inflights(cfg.max_inflight_msgs, cfg.max_inflight_bytes), match=0, next=last + 1)
-            for p in cfg.peers
-        }
+        last = self.log.last_index()
+        self.prs = {p: self._new_progress(last + 1) for p in self.conf_state.members if p != self.id}
         self._uncommitted.clear()
         self._uncommitted_bytes = 0
         # A no-op entry of the new term lets entries of earlier terms commit through it.
-        self._append_and_broadcast([b""], kind=EntryKind.NOOP)
+        self._term_start = self._append_and_broadcast([b""], kind=EntryKind.NOOP)
+
+    def _new_progress(self, next_index: int) -> Progress:
+        cfg = self.config
+        return Progress(Inflights(cfg.max_inflight_msgs, cfg.max_inflight_bytes), match=0, next=next_index)
 
     # -- leader ---------------------------------------------------------------------------
     def _tick_leader(self) -> None:
         self.election_elapsed += 1
         if self.election_elapsed >= self.config.election_tick:
             self.election_elapsed = 0
-            active = 1 + sum(pr.recent_active for pr in self.prs.values())
+            voters = self.conf_state.voters
+            active = (self.id in voters) + sum(pr.recent_active for p, pr in self.prs.items() if p in voters)
             for pr in self.prs.values():
                 pr.responsive, pr.recent_active = pr.recent_active, False
             if self.config.check_quorum and active < self._quorum():
                 self._become_follower(self.term, None)
                 return
+        if self.lead_transferee is not None:
+            self._transfer_elapsed += 1
+            if self._transfer_elapsed >= self.config.election_tick:
+                self.lead_transferee = None  # the transfer failed: take proposals again
         # A heartbeat goes to a follower that heard nothing from us for a heartbeat interval;
         # for flow_heartbeat_tick when our last message to it was a pipelined append (unless
         # it still owes an answer for entries that are not committed: a lost answer would stall
@@ -299,7 +353,12 @@ class RaftNode:
                 pr.silent, pr.flowing = 0, False
                 self._send(
                     Message(
-                        MsgType.HEARTBEAT, self.id, p, self.term, commit=min(pr.match, self.log.committed)
+                        MsgType.HEARTBEAT,
+                        self.id,
+                        p,
+                        self.term,
+                        index=self._read_round,
+                        commit=min(pr.match, self.log.committed),
                     )
                 )
 
@@ -314,6 +373,8 @@ class RaftNode:
         first = self.log.last_index() + 1
         entries = [Entry(self.term, first + i, d, kind) for i, d in enumerate(datas)]
         last = self.log.append(entries)
+        if kind == EntryKind.CONF_CHANGE:
+            self._conf_appended(entries)
         size = sum(len(d) for d in datas)
         if size:
             self._uncommitted.append((last, size))
@@ -370,13 +431,18 @@ class RaftNode:
         if it is not above the commit index (most answers, under steady load)."""
         if acked is not None and acked <= self.log.committed:
             return False
-        matches = sorted([self.log.last_index(), *(pr.match for pr in self.prs.values())], reverse=True)
+        voters = self.conf_state.voters
+        matches = [pr.match for p, pr in self.prs.items() if p in voters]
+        if self.id in voters:
+            matches.append(self.log.last_index())
+        matches.sort(reverse=True)
         n = matches[self._quorum() - 1]
         # The commit rule: only an entry of the current term commits by counting replicas.
         if n > self.log.committed and self.log.term(n) == self.term:
             self.log.commit_to(n)
             while self._uncommitted and self._uncommitted[0][0] <= n:
                 self._uncommitted_bytes -= self._uncommitted.popleft()[1]
+            self._committed_in_term()
             return True
         return False
 
@@ -397,10 +463,16 @@ class RaftNode:
                     pr.inflights.free_le(m.index)
                 # the new commit index, if any, travels with the next append or heartbeat
                 self._maybe_commit(pr.match)
+                if self.role != Role.LEADER:
+                    return  # it committed its own removal and stepped down
                 while self._send_append(m.frm, send_if_empty=False):
                     pass
+                if m.frm == self.lead_transferee and pr.match == self.log.last_index():
+                    self._send_timeout_now(m.frm)
         elif m.type == MsgType.HEARTBEAT_RESP:
             pr.recent_active = True
+            if m.index and self._pending_reads:
+                self._read_acked(m.frm, m.index)
             pr.paused = False
             if not pr.probe and pr.inflights.full():
                 pr.inflights.free_first()
@@ -412,6 +484,8 @@ class RaftNode:
     def _step_prop(self, m: Message) -> None:
         datas = [e.data for e in m.entries]
         if self.role == Role.LEADER:
+            if self.lead_transferee is not None:
+                return  # handing over: dropped, the proposer retries at the new leader
             try:
                 self._check_uncommitted(sum(len(d) for d in datas))
             except ProposalDropped:
@@ -479,7 +553,7 @@ class RaftNode:
             # append after a lost one) is rejected at once, as before.
             self._early.setdefault(m.index, m)
             return
-        last = self.log.maybe_append(m.index, m.log_term, m.commit, m.entries)
+        last = self._take_append(m)
         if last is None:
             self._reject_append(m)
             return
@@ -487,11 +561,22 @@ class RaftNode:
         # held appends that continue from here (one after the other) go in now
         while last is not None and last > last_index and (held := self._early.pop(last, None)):
             last_index = last
-            last = self.log.maybe_append(held.index, held.log_term, held.commit, held.entries)
+            last = self._take_append(held)
             if last is None:
                 self._reject_append(held)
             else:
                 self._send(Message(MsgType.APP_RESP, self.id, held.frm, self.term, index=last))
+
+    def _take_append(self, m: Message) -> int | None:
+        """The log's consistency check and append (`RaftLog.maybe_append`), and the
+        configurations the log now holds (a truncation may undo one, an entry add one)."""
+        last = self.log.maybe_append(m.index, m.log_term, m.commit, m.entries)
+        if last is not None and (
+            self.confs.changes or any(e.kind == EntryKind.CONF_CHANGE for e in m.entries)
+        ):
+            self.confs.truncate(self.log.term)
+            self.confs.add(m.entries)
+        return last
 
     def _reject_append(self, m: Message) -> None:
         self._send(
@@ -516,7 +601,174 @@ class RaftNode:
 
     def _handle_heartbeat(self, m: Message) -> None:
         self.log.commit_to(min(m.commit, self.log.last_index()))
-        self._send(Message(MsgType.HEARTBEAT_RESP, self.id, m.frm, self.term))
+        self._send(Message(MsgType.HEARTBEAT_RESP, self.id, m.frm, self.term, index=m.index))
 
     def _send(self, m: Message) -> None:
         self.msgs.append(m)
+
+    # -- membership -----------------------------------------------------------------------
+    @property
+    def conf_state(self) -> ConfState:
+        """The configuration in effect: the newest in the log, committed or not."""
+        return self.confs.current
+
+    def progress(self, node: int) -> Progress | None:
+        """The leader's view of a member (``match``: the highest index it is known to hold);
+        None on a follower or for a node that is not a member."""
+        return self.prs.get(node) if self.role == Role.LEADER else None
+
+    def propose_conf_change(self, cc: ConfChange) -> int:
+        """Append a single-server configuration change (leader only) and return its index;
+        it takes effect at once (`raft.membership`). Raises `NotLeader` on a follower (changes
+        are not forwarded), `LeaderTransferring` during a transfer, and `ConfChangeRefused`
+        while another change is uncommitted, before the leader has committed an entry of its
+        term, for a change that does not apply (`ConfState.check`), or to promote a learner
+        whose match index is more than ``promote_gap`` behind the leader's last index. A leader
+        that removes itself keeps leading until the change commits, then steps down."""
+        if self.role != Role.LEADER:
+            raise NotLeader(self.id, self.lead)
+        if self.lead_transferee is not None:
+            raise LeaderTransferring(self.id, self.lead_transferee)
+        if self.log.committed < self._term_start:
+            raise ConfChangeRefused(self.id, f"no entry of term {self.term} is committed yet; retry")
+        if self.confs.last_index > self.log.committed:
+            raise ConfChangeRefused(
+                self.id, f"the change at index {self.confs.last_index} is not committed yet; retry"
+            )
+        if (why := self.conf_state.check(cc)) is not None:
+            raise ConfChangeRefused(self.id, why)
+        if cc.type == ConfChangeType.PROMOTE:
+            match, last, gap = self.prs[cc.node].match, self.log.last_index(), self.config.promote_gap
+            if match + gap < last:
+                raise ConfChangeRefused(
+                    self.id,
+                    f"learner {cc.node} is not caught up "
+                    f"(match {match}, last index {last}, promote_gap {gap})",
+                )
+        return self._append_and_broadcast([cc.encode()], kind=EntryKind.CONF_CHANGE)
+
+    def _conf_appended(self, entries: list[Entry]) -> None:
+        """The leader appended a configuration entry: it takes effect now; new members get a
+        progress (probed from that entry on), removed ones lose theirs."""
+        self.confs.add(entries)
+        members = set(self.conf_state.members)
+        for p in members - set(self.prs) - {self.id}:
+            self.prs[p] = self._new_progress(entries[0].index)
+        for p in set(self.prs) - members:
+            del self.prs[p]
+        if self.lead_transferee is not None and self.lead_transferee not in self.conf_state.voters:
+            self.lead_transferee = None
+
+    def _committed_in_term(self) -> None:
+        """The leader's commit index moved. Once it covers the current configuration, a leader
+        that is no longer a voter steps down (etcd); once it covers the term's first entry,
+        reads that waited for it start."""
+        if self.id not in self.conf_state.voters and self.log.committed >= self.confs.last_index:
+            self._become_follower(self.term, None)
+            return
+        if self._early_reads and self.log.committed >= self._term_start:
+            early, self._early_reads = self._early_reads, []
+            for ctx, asker in early:
+                self._start_read(ctx, asker)
+
+    # -- transfer -------------------------------------------------------------------------
+    def transfer_leader(self, to: int) -> None:
+        """Hand leadership to voter ``to`` (Raft thesis, section 3.10): the leader stops taking
+        proposals, brings ``to`` up to date, then sends it MsgTimeoutNow, on which it starts a
+        forced election (`campaign` with ``force``). Aborted after an election timeout
+        (``election_tick`` ticks), when proposals are taken again. `NotLeader` on a follower;
+        ValueError if ``to`` is not a voter."""
+        if self.role != Role.LEADER:
+            raise NotLeader(self.id, self.lead)
+        if to == self.id or self.lead_transferee == to:
+            return
+        if to not in self.conf_state.voters:
+            raise ValueError(f"transfer_leader: node {to} is not a voter")
+        self.lead_transferee, self._transfer_elapsed = to, 0
+        pr = self.prs[to]
+        if pr.match == self.log.last_index():
+            self._send_timeout_now(to)
+        else:
+            self._send_append(to)
+
+    def _send_timeout_now(self, to: int) -> None:
+        last = self.log.last_index()
+        self._send(
+            Message(
+                MsgType.TIMEOUT_NOW, self.id, to, self.term, log_term=self.log.term(last) or 0, index=last
+            )
+        )
+
+    def _handle_timeout_now(self, m: Message) -> None:
+        self.campaign(force=True)  # nothing on a leader, a learner or a removed node
+
+    # -- reads ----------------------------------------------------------------------------
+    def read_index(self, ctx: int) -> None:
+        """Ask for a linearizable read (Raft thesis, section 6.4), ``ctx`` (an int >= 1) naming
+        it. The leader records its commit index, confirms it still leads with a heartbeat round
+        answered by a quorum of voters, and answers once it has applied up to that index; a
+        follower or learner forwards the request to its leader and answers once it has applied
+        up to the index the leader sends back. The answer is a `ReadState` in a later `Ready`;
+        a read lost (a leader change, a lost message) is never answered: ask again. A new
+        leader starts reads once it has committed an entry of its term. `NotLeader` when no
+        leader is known."""
+        if ctx < 1:
+            raise ValueError("read_index: ctx must be >= 1")
+        if self.role == Role.LEADER:
+            self._leader_read(ctx, self.id)
+        elif self.lead is not None and self.role == Role.FOLLOWER:
+            self._send(Message(MsgType.READ_INDEX, self.id, self.lead, self.term, index=ctx))
+        else:
+            raise NotLeader(self.id, self.lead)
+
+    def _leader_read(self, ctx: int, asker: int) -> None:
+        if self.log.committed < self._term_start:
+            self._early_reads.append((ctx, asker))
+        else:
+            self._start_read(ctx, asker)
+
+    def _start_read(self, ctx: int, asker: int) -> None:
+        self._read_round += 1
+        r, index = self._read_round, self.log.committed
+        if self._read_confirmed(r):  # a single voter
+            self._read_done(index, ctx, asker)
+            return
+        self._pending_reads.append((r, index, ctx, asker))
+        for p, pr in self.prs.items():
+            if p in self.conf_state.voters:
+                pr.silent = 0
+                self._send(
+                    Message(
+                        MsgType.HEARTBEAT,
+                        self.id,
+                        p,
+                        self.term,
+                        index=r,
+                        commit=min(pr.match, self.log.committed),
+                    )
+                )
+
+    def _read_confirmed(self, r: int) -> bool:
+        voters = self.conf_state.voters
+        acks = (self.id in voters) + sum(self._acked_round.get(p, 0) >= r for p in voters if p != self.id)
+        return acks >= self._quorum()
+
+    def _read_acked(self, frm: int, r: int) -> None:
+        if r > self._acked_round.get(frm, 0):
+            self._acked_round[frm] = r
+        while self._pending_reads and self._read_confirmed(self._pending_reads[0][0]):
+            _, index, ctx, asker = self._pending_reads.popleft()
+            self._read_done(index, ctx, asker)
+
+    def _read_done(self, index: int, ctx: int, asker: int) -> None:
+        if asker == self.id:
+            self._read_states.append(ReadState(index, ctx))
+        else:
+            self._send(Message(MsgType.READ_INDEX_RESP, self.id, asker, self.term, index=ctx, commit=index))
+
+    def _step_read(self, m: Message) -> None:
+        if m.type == MsgType.READ_INDEX:
+            if self.role == Role.LEADER and m.frm in self.prs:
+                self._leader_read(m.index, m.frm)
+        elif self.role != Role.LEADER and m.frm == self.lead:
+            self._read_states.append(ReadState(m.commit, m.index))

@@ -21,6 +21,7 @@ class Storage(Protocol):
     def term(self, index: int) -> int: ...
     def entries(self, lo: int, hi: int) -> list[Entry]: ...
     def save(self, hard_state: HardState | None, entries: Sequence[Entry]) -> None: ...
+    def conf_entries(self) -> list[Entry]: ...
 
 
 def _check_contiguous(entries: Sequence[Entry], last: int) -> None:
@@ -58,6 +59,10 @@ class MemoryStorage:
         if lo < 1 or hi > len(self._log) + 1 or lo > hi:
             raise IndexError(f"storage: entries [{lo}, {hi}) out of range (last {len(self._log)})")
         return self._log[lo - 1 : hi - 1]
+
+    def conf_entries(self) -> list[Entry]:
+        """The configuration-change entries, in order (a restarting node's membership)."""
+        return [e for e in self._log if e.kind == EntryKind.CONF_CHANGE]
 
     def save(self, hard_state: HardState | None, entries: Sequence[Entry]) -> None:
         _check_contiguous(entries, len(self._log))
@@ -112,6 +117,14 @@ class SQLiteStorage:
             raise IndexError(f"storage: entries [{lo}, {hi}) out of range (last {len(self._terms)})")
         rows = self._db.execute(
             "SELECT term, idx, data, kind FROM entries WHERE idx >= ? AND idx < ? ORDER BY idx", (lo, hi)
+        )
+        return [Entry(t, i, bytes(d), EntryKind(k)) for t, i, d, k in rows]
+
+    def conf_entries(self) -> list[Entry]:
+        """The configuration-change entries, in order (a restarting node's membership)."""
+        rows = self._db.execute(
+            "SELECT term, idx, data, kind FROM entries WHERE kind = ? ORDER BY idx",
+            (EntryKind.CONF_CHANGE.value,),
         )
         return [Entry(t, i, bytes(d), EntryKind(k)) for t, i, d, k in rows]
 

@@ -10,6 +10,7 @@ from typing import NamedTuple
 class EntryKind(StrEnum):
     NORMAL = "normal"
     NOOP = "noop"  # appended by a new leader to commit entries of earlier terms
+    CONF_CHANGE = "conf-change"  # a membership change (raft.membership.ConfChange)
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,6 +39,9 @@ class MsgType(StrEnum):
     PRE_VOTE_RESP = "MsgPreVoteResp"
     HEARTBEAT = "MsgHeartbeat"
     HEARTBEAT_RESP = "MsgHeartbeatResp"
+    TIMEOUT_NOW = "MsgTimeoutNow"  # leader transfer: campaign now (a forced election)
+    READ_INDEX = "MsgReadIndex"  # a follower asks the leader for a read index
+    READ_INDEX_RESP = "MsgReadIndexResp"
 
 
 @dataclass(slots=True)
@@ -48,6 +52,12 @@ class Message:
     forced election (`RaftNode.campaign` with ``force=True``: a leader transfer, or a voter that
     found its leader faulty): receivers answer it even while they hear from a leader (etcd's
     campaignTransfer context).
+
+    ReadIndex (`RaftNode.read_index`) uses fields the message types leave free, so the wire
+    format did not change: a heartbeat's ``index`` is the leader's latest read round and its
+    answer echoes it; MsgReadIndex carries the request's ``ctx`` in ``index``; MsgReadIndexResp
+    the ``ctx`` in ``index`` and the read index in ``commit``. MsgTimeoutNow carries the
+    leader's last entry (``index``, ``log_term``) the target was caught up to.
 
     Treat it as immutable (it is not frozen only because frozen dataclasses are four times
     slower to build, and messages are the simulator's hot path)."""
@@ -72,20 +82,30 @@ class Role(StrEnum):
     LEADER = "leader"
 
 
+class ReadState(NamedTuple):
+    """A linearizable read is answered: state applied up to ``index`` includes every write
+    committed before the read began (`RaftNode.read_index` with this ``ctx``)."""
+
+    index: int
+    ctx: int
+
+
 @dataclass(slots=True)
 class Ready:
     """Work for the host, in this order: persist ``hard_state`` (if not None) and
     ``entries`` (they replace any stored entries from their first index on), then send
     ``messages``, then apply ``committed``, then call ``advance(ready)``. Messages may depend on
-    the state in the same Ready, so they must not leave before it is persisted."""
+    the state in the same Ready, so they must not leave before it is persisted.
+    ``read_states``: reads answered (`ReadState`); the node has already applied their index."""
 
     hard_state: HardState | None
     entries: tuple[Entry, ...]
     committed: tuple[Entry, ...]
     messages: tuple[Message, ...]
+    read_states: tuple[ReadState, ...] = ()
 
     def __bool__(self) -> bool:
-        return bool(self.hard_state or self.entries or self.committed or self.messages)
+        return bool(self.hard_state or self.entries or self.committed or self.messages or self.read_states)
 
 
 @dataclass(frozen=True)
@@ -128,6 +148,9 @@ class RaftConfig:
     max_inflight_msgs: int = 256
     max_inflight_bytes: int = 4 << 20
     max_uncommitted_bytes: int = 1 << 20
+    voters: tuple[int, ...] | None = None
+    learners: tuple[int, ...] = ()
+    promote_gap: int = 64
 
     def __post_init__(self) -> None:
         if self.id in self.peers:
@@ -147,6 +170,13 @@ class RaftConfig:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"RaftConfig: {name} must be >= 1")
+        if self.promote_gap < 0:
+            raise ValueError("RaftConfig: promote_gap must be >= 0")
+        boot = (*(self.voters if self.voters is not None else self.members), *self.learners)
+        if any(i < 1 for i in boot) or len(set(boot)) != len(boot):
+            raise ValueError("RaftConfig: voters and learners must be distinct ids >= 1")
+        if self.voters is not None and not self.voters:
+            raise ValueError("RaftConfig: voters must not be empty")
 
     @property
     def members(self) -> tuple[int, ...]:
@@ -184,3 +214,21 @@ class NotLeader(Exception):
         self.node, self.leader = node, leader
         hint = f"; try node {leader}" if leader is not None else "; no leader is known"
         super().__init__(f"node {node} is not the leader{hint}")
+
+
+class ConfChangeRefused(Exception):
+    """The leader refused a configuration change; the message says why (another change is
+    pending, no entry of its term committed yet, a learner not caught up, ...)."""
+
+    def __init__(self, node: int, reason: str) -> None:
+        self.node, self.reason = node, reason
+        super().__init__(f"node {node} refused the configuration change: {reason}")
+
+
+class LeaderTransferring(NotLeader):
+    """A proposal reached a leader that is handing over to ``leader`` (`RaftNode.transfer_leader`);
+    retry there."""
+
+    def __init__(self, node: int, to: int) -> None:
+        Exception.__init__(self, f"node {node} is handing leadership over to node {to}; try node {to}")
+        self.node, self.leader = node, to

@@ -1,9 +1,12 @@
 """Randomised fault runs that try to break Raft: crashes (some mid-Ready, some restarted at
 once), partitions, one-way cuts, loss, duplication and deep reordering, on 3-7 nodes with
 PreVote and CheckQuorum drawn per seed, appends of 1-4 entries and, in some seeds, logs of
-thousands of entries. Every safety invariant is checked after every event; once the faults
-stop, liveness (a leader within two election timeouts, then no term change) and convergence
-(every committed entry on every node) are checked.
+thousands of entries. In a fraction of the seeds (``FuzzConfig.membership``) membership moves
+too: nodes join as learners, learners are promoted, voters (the leader too) and learners are
+removed, leadership is transferred, and linearizable reads are asked at any node. Every safety
+invariant is checked after every event; once the faults stop, liveness (a leader within two
+election timeouts, then no term change) and convergence (every committed entry on every
+member) are checked.
 
 A run is fully determined by its seed: a failing seed replays exactly
 (``swarmraft raft-fuzz --seed-start S --seeds 1``).
@@ -15,7 +18,7 @@ import random
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from swarmraft.raft import RaftSafetyError
+from swarmraft.raft import ConfChange, ConfChangeRefused, ConfChangeType, NotLeader, RaftSafetyError
 from swarmraft.sim.invariants import InvariantViolation
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -45,7 +48,15 @@ class FuzzConfig:
     Faults are drawn every ``step_ms`` for ``fault_ms`` of virtual time; then the network heals
     for good and every node restarts; liveness and convergence as in `_settle`, convergence
     within ``settle_ms``. ``without``: invariants not checked (names in
-    `sim.invariants.INVARIANTS`, and "liveness"), to show what each one alone catches."""
+    `sim.invariants.INVARIANTS`, and "liveness"), to show what each one alone catches.
+
+    Membership: in a fraction ``membership`` of the seeds (drawn from a generator of its own,
+    so the other seeds run exactly as without it), every ``step_ms`` a membership operation
+    with probability ``p_member`` (a node joins as a learner (a new one, up to 9 nodes, or one
+    removed earlier), a learner is promoted, a voter (the leader in a third of the removals)
+    or a learner removed, leadership transferred) and with probability ``p_read`` a
+    linearizable read: at a random node, or (half the time) at every node that believes it
+    leads, a deposed one too."""
 
     nodes: int | None = None
     fault_ms: float = 3000.0
@@ -67,6 +78,10 @@ class FuzzConfig:
     p_propose: float = 0.6
     max_events: int = 2_000_000  # a seed over this many events fails as "budget" (a message storm)
     without: frozenset[str] = frozenset()
+    membership: float = 0.5
+    p_member: float = 0.3
+    p_read: float = 0.5
+    max_nodes: int = 9
 
 
 class _OverBudget(Exception):
@@ -89,6 +104,8 @@ class FuzzResult:
     check_quorum: bool = False
     max_entries_per_msg: int = 0
     last_index: int = 0  # the longest log at the end
+    conf_changes: int = 0  # configuration changes a leader accepted
+    reads: int = 0  # linearizable reads answered
 
     @property
     def ok(self) -> bool:
@@ -119,6 +136,8 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
         reorder=rng.uniform(0.0, 0.3) * (0 if heavy else 1),
         reorder_ms=rng.choice((20.0, 100.0, 400.0)),
     )
+    mrng = random.Random(seed * 7919 + 29)  # membership draws: other seeds run as before
+    member = mrng.random() < cfg.membership
     committed: set[bytes] = set()
     c = Cluster(
         n,
@@ -134,7 +153,7 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
         without=cfg.without,
         on_apply=lambda _i, e: committed.add(e.data) if e.data else None,
     )
-    stats = {"proposals": 0, "crashes": 0, "partitions": 0}
+    stats = {"proposals": 0, "crashes": 0, "partitions": 0, "conf_changes": 0}
 
     def result(ok: bool, error: str | None = None, invariant: str | None = None) -> FuzzResult:
         last = max(len(c.log(i)) for i in c.ids)
@@ -153,10 +172,12 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
             check_quorum,
             per_msg,
             last,
+            stats["conf_changes"],
+            len(c.read_states),
         )
 
     try:
-        _faults(c, rng, cfg, target, stats)
+        _faults(c, rng, cfg, target, stats, mrng if member else None)
         return _settle(c, cfg, committed, result, liveness=pre_vote and "liveness" not in cfg.without)
     except InvariantViolation as exc:
         return result(False, str(exc), exc.invariant or "invariant")
@@ -173,8 +194,16 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
         return result(False, f"{type(exc).__name__}: {exc}", "exception")
 
 
-def _faults(c: Cluster, rng: random.Random, cfg: FuzzConfig, target: int, stats: dict[str, int]) -> None:
-    """The fault phase: every ``step_ms`` at most one fault, and proposals."""
+def _faults(
+    c: Cluster,
+    rng: random.Random,
+    cfg: FuzzConfig,
+    target: int,
+    stats: dict[str, int],
+    mrng: random.Random | None = None,
+) -> None:
+    """The fault phase: every ``step_ms`` at most one fault, and proposals; with ``mrng``,
+    membership operations and reads too."""
     down_until: dict[int, float] = {}
     t_end = c.now + cfg.fault_ms
     while c.now < t_end:
@@ -249,6 +278,60 @@ def _faults(c: Cluster, rng: random.Random, cfg: FuzzConfig, target: int, stats:
             via = rng.choice([None, *c.alive_ids()])
             c.propose(datas[0], via=via) if size == 1 else c.propose_batch(datas, via=via)
             stats["proposals"] += size
+        if mrng is not None:
+            _membership(c, mrng, cfg, stats)
+
+
+def _membership(c: Cluster, rng: random.Random, cfg: FuzzConfig, stats: dict[str, int]) -> None:
+    """At most one membership operation and one read; refused ones (no leader, a change
+    pending, a learner not caught up, ...) are part of the test."""
+    if rng.random() < cfg.p_read:
+        if rng.random() < 0.5:
+            c.read_index(rng.choice(c.ids))
+        else:  # at every node that believes it leads: a deposed leader must not answer
+            for i in c.alive_ids():
+                if c.nodes[i].role == "leader":  # type: ignore[union-attr]
+                    c.read_index(i)
+    if rng.random() < cfg.p_member:
+        # now and then two at once: the second must be refused while the first is pending
+        for _ in range(2 if rng.random() < 0.3 else 1):
+            _member_op(c, rng, cfg, stats)
+
+
+def _member_op(c: Cluster, rng: random.Random, cfg: FuzzConfig, stats: dict[str, int]) -> None:
+    lead = c.leader()
+    if lead is None:
+        return
+    conf = c.conf_state(lead)
+    op = rng.choice(("add", "add", "promote", "promote", "remove", "transfer"))
+    try:
+        if op == "add":
+            outside = [i for i in c.ids if i not in conf.members]
+            if len(c.ids) < cfg.max_nodes and (not outside or rng.random() < 0.5):
+                k = c.add_node()
+            elif outside:
+                k = rng.choice(outside)
+            else:
+                return
+            c.propose_conf_change(ConfChange(ConfChangeType.ADD_LEARNER, k))
+        elif op == "promote" and conf.learners:
+            c.propose_conf_change(ConfChange(ConfChangeType.PROMOTE, rng.choice(conf.learners)))
+        elif op == "remove":
+            if conf.learners and rng.random() < 0.3:
+                k = rng.choice(conf.learners)
+            elif len(conf.voters) > 2:
+                k = lead if rng.random() < 1 / 3 else rng.choice(conf.voters)
+            else:
+                return
+            c.propose_conf_change(ConfChange(ConfChangeType.REMOVE, k))
+        elif op == "transfer" and len(conf.voters) > 1:
+            c.transfer_leader(rng.choice([v for v in conf.voters if v != lead]))
+            return
+        else:
+            return
+        stats["conf_changes"] += 1
+    except (NotLeader, ConfChangeRefused):
+        pass
 
 
 def _victim(c: Cluster, rng: random.Random, alive: list[int]) -> int:
@@ -282,15 +365,31 @@ def _settle(
     c.run(max(et / 2, link.delay_ms[1] + link.reorder_ms))
     healed = c.now
 
+    def members() -> list[int]:
+        lead = c.leader()
+        return list(c.conf_state(lead).members) if lead is not None else list(c.ids)
+
     def top_term() -> int:
-        return max(node.term for node in c.nodes.values() if node is not None)
+        return max(c.nodes[i].term for i in members())  # type: ignore[union-attr]
 
     def stable() -> bool:
+        # a leader among its voters (one that appended its own removal is not: it steps down
+        # once that commits), no transfer under way, every member following it in its term.
+        # Its configuration need not be committed yet: on a long log caught up one entry per
+        # append that can take longer than the window
         lead = c.leader()
         if lead is None:
             return False
-        term = c.nodes[lead].term  # type: ignore[union-attr]
-        return all(node is not None and node.term == term and node.lead == lead for node in c.nodes.values())
+        node = c.nodes[lead]
+        assert node is not None
+        if lead not in node.conf_state.voters:
+            return False
+        if node.lead_transferee is not None:  # a transfer from the fault phase still runs
+            return False
+        return all(
+            (m := c.nodes[i]) is not None and m.term == node.term and m.lead == lead
+            for i in node.conf_state.members
+        )
 
     window = 2 * et if liveness else cfg.settle_ms
     if not c.run_until(stable, window):
@@ -301,13 +400,14 @@ def _settle(
             "liveness" if liveness else "convergence",
         )
     lead, term, elected = c.leader(), top_term(), c.now
+    live = members()
 
     def converged() -> bool:
         if c.loop.events > cfg.max_events:
             raise _OverBudget
         leader = c.nodes[lead]  # type: ignore[index]
         last = leader.log.last_index() if leader is not None else -1
-        return all(node is not None and node.log.applied == last for node in c.nodes.values())
+        return all((node := c.nodes[i]) is not None and node.log.applied == last for i in live)
 
     done = c.run_until(converged, cfg.settle_ms)
     c.run(et)  # and stays so: no election starts
@@ -318,8 +418,8 @@ def _settle(
             f"by t = {c.now:.1f} ms the term is {top_term()} and the leader {c.leader()}",
             "liveness",
         )
-    first = c.applied(c.ids[0])
-    if not (done and set(first) >= committed and all(c.applied(i) == first for i in c.ids)):
+    first = c.applied(live[0])
+    if not (done and set(first) >= committed and all(c.applied(i) == first for i in live)):
         return result(
             False,
             f"seed {c.seed}: did not converge: some committed entry is missing on a node",

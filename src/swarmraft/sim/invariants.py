@@ -26,6 +26,10 @@ INVARIANTS = (
     "durable-term-vote",  # a persisted term never goes back; one persisted vote per term
     "durable-before-send",  # a granted vote, an acknowledged entry: on disk before the answer leaves
     "state-machine-safety",  # no two nodes apply different entries at one index
+    "read-linearizable",  # a ReadIndex answer covers every commit made before the read began
+    "transfer-caught-up",  # MsgTimeoutNow goes only to a node holding the leader's whole log
+    "conf-change-rule",  # a leader appends a configuration change only with the previous one
+    # committed and an entry of its own term committed (single-server changes, thesis 4.1)
 )
 
 
@@ -142,6 +146,8 @@ class InvariantChecker:
                         f"leader {nid} of term {node.term} lacks committed entries up to {c}",
                     )
                 track.leader_term = node.term
+            if dirty is not None and node.confs.last_index >= max(dirty, track.leader_last + 1):
+                self._check_conf_rule(now, node, max(dirty, track.leader_last + 1))
             track.leader_last = last
         else:
             track.leader_term = None
@@ -200,6 +206,31 @@ class InvariantChecker:
                 )
         self.hard[nid] = hard
 
+    def _check_conf_rule(self, now: float, node: RaftNode, first_new: int) -> None:
+        """The leader appended entries from ``first_new`` on, configuration changes among them:
+        each needs the configuration entry before it committed, and an entry of the leader's
+        term committed (one change at a time; Ongaro's fix to single-server changes)."""
+        changes = [i for i, _, _ in node.confs.changes]
+        commit = node.log.committed
+        for k, i in enumerate(changes):
+            if i < first_new:
+                continue
+            prev = changes[k - 1] if k > 0 else node.confs.base_index
+            if prev > commit:
+                self.fail(
+                    now,
+                    "conf-change-rule",
+                    f"leader {node.id} appended a configuration change at {i} while the one at {prev} "
+                    f"is not committed (commit {commit})",
+                )
+            if node.log.term(commit) != node.term:
+                self.fail(
+                    now,
+                    "conf-change-rule",
+                    f"leader {node.id} of term {node.term} appended a configuration change at {i} before "
+                    f"committing an entry of its term (commit {commit}, of term {node.log.term(commit)})",
+                )
+
     def sending(self, now: float, m: Message, storage: Storage) -> None:
         """Durable before sent: a granted vote is on disk (that term, that candidate) before the
         answer leaves, and so is every entry an append answer acknowledges."""
@@ -219,6 +250,39 @@ class InvariantChecker:
                 now,
                 "durable-before-send",
                 f"node {m.frm} acknowledges index {m.index} with {storage.last_index()} entries on disk",
+            )
+
+    def read_answered(self, now: float, node_id: int, ctx: int, index: int, floor: int, applied: int) -> None:
+        """Linearizable reads: the read index of an answer is at least the highest index any
+        node had committed when the read was asked (``floor``), and the answering node has
+        applied up to it."""
+        if index < floor:
+            self.fail(
+                now,
+                "read-linearizable",
+                f"node {node_id} answered read {ctx} at index {index}, but index {floor} was committed "
+                "before the read began",
+            )
+        if applied < index:
+            self.fail(
+                now,
+                "read-linearizable",
+                f"node {node_id} answered read {ctx} at index {index} having applied only {applied}",
+            )
+
+    def timeout_now(self, now: float, m: Message, target: Storage) -> None:
+        """A leader transfer's MsgTimeoutNow goes only to a node that holds (on disk) the
+        leader's last entry (``m.index``, ``m.log_term``): one that does not would start an
+        election it cannot win while the leader refuses proposals."""
+        if target.initial_state().term > m.term:
+            return  # the target moved on to a later term: the message is stale and ignored
+        last = target.last_index()
+        if m.index > last or target.term(m.index) != m.log_term:
+            self.fail(
+                now,
+                "transfer-caught-up",
+                f"leader {m.frm} sent MsgTimeoutNow to node {m.to}, whose log ends at {last}, before it "
+                f"held the leader's last entry {m.index} (term {m.log_term})",
             )
 
     def applied_entry(self, now: float, node_id: int, entry: Entry) -> None:

@@ -281,6 +281,8 @@ class Mission:
                 c.crash(lead)
                 self.drones[lead - 1] = SwarmDrone(lead - 1, self.pcfg, self.keys)
             self.log.events.append((now, f"leader {lead} crashed"))
+        elif f.kind == "transfer-leader":
+            self.log.events.append((now, self._transfer(f.drone)))
         elif f.kind == "restart":
             if not c.alive(f.drone):
                 c.restart(f.drone)
@@ -300,6 +302,27 @@ class Mission:
         else:
             c.set_loss(f.value)
             self.log.events.append((now, f"loss set to {f.value:.0%}"))
+
+    def _transfer(self, to: int | None) -> str:
+        """The leader hands over to drone ``to``, or (None) to the voter whose log is the most
+        complete (highest match index; the lowest id on a tie). Returns the event's text."""
+        c = self.cluster
+        lead = c.leader()
+        if lead is None:
+            return "transfer-leader: no leader, nothing handed over"
+        node = c.nodes[lead]
+        assert node is not None
+        if to is None:
+            others = [v for v in node.conf_state.voters if v != lead]
+            if not others:
+                return f"transfer-leader: leader {lead} is the only voter"
+            to = max(others, key=lambda v: (node.prs[v].match, -v))
+        if to == lead:
+            return f"transfer-leader: drone {to} leads already"
+        if not c.alive(to):
+            return f"transfer-leader: drone {to} is down, leader {lead} keeps leading"
+        c.transfer_leader(to)
+        return f"leader {lead} hands over to drone {to}"
 
     # -- running ----------------------------------------------------------------------------
     def run(self, progress: Callable[[int], None] | None = None) -> MissionLog:

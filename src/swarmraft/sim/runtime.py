@@ -28,6 +28,8 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from swarmraft.raft import (
+    ConfChange,
+    ConfState,
     Entry,
     EntryKind,
     MemoryStorage,
@@ -110,18 +112,19 @@ class Cluster:
         self.network = network if isinstance(network, Network) else Network(network or LinkModel())
         self.loop = EventLoop()
         self.rng = random.Random(seed)
+        self._raft_kw: dict[str, Any] = dict(
+            election_tick=election_tick,
+            heartbeat_tick=heartbeat_tick,
+            pre_vote=pre_vote,
+            check_quorum=check_quorum,
+            **(raft_options or {}),
+        )
         self.configs = {
-            i: RaftConfig(
-                id=i,
-                peers=tuple(p for p in self.ids if p != i),
-                election_tick=election_tick,
-                heartbeat_tick=heartbeat_tick,
-                pre_vote=pre_vote,
-                check_quorum=check_quorum,
-                **(raft_options or {}),
-            )
-            for i in self.ids
+            i: RaftConfig(id=i, peers=tuple(p for p in self.ids if p != i), **self._raft_kw) for i in self.ids
         }
+        self._boot = self.ids  # the bootstrap voters
+        self._reads: dict[int, tuple[float, int]] = {}  # ctx -> (asked at, highest commit then)
+        self.read_states: dict[int, tuple[int, int, float]] = {}  # ctx -> (node, index, answered at)
         self.storage = {i: MemoryStorage() for i in self.ids}
         self.nodes: dict[int, RaftNode | None] = {}
         self._incarnation = dict.fromkeys(self.ids, 0)
@@ -184,6 +187,8 @@ class Cluster:
             for m in rd.messages:
                 if self.checker and m.type in _PROMISES:
                     self.checker.sending(self.loop.now, m, self.storage[i])
+                elif self.checker and m.type == MsgType.TIMEOUT_NOW:
+                    self.checker.timeout_now(self.loop.now, m, self.storage[m.to])
                 self.sent[m.type] += 1  # StrEnum: counts are looked up by "MsgApp" too
                 for d in self.network.delays(self.rng, m.frm, m.to):
                     self.loop.after(d, self._deliver, m)
@@ -195,6 +200,8 @@ class Cluster:
                     self.checker.applied_entry(self.loop.now, i, e)
                 if self.on_apply:
                     self.on_apply(i, e)
+            for rs in rd.read_states:
+                self._read_answered(i, node, rs.index, rs.ctx)
             node.advance(rd)
         # Without state in a Ready nothing persistent changed (at most a leader stepped
         # down, or messages went out), so there is nothing new for the invariants to see.
@@ -225,6 +232,76 @@ class Cluster:
                 return True
         self.loop.now = end
         return False
+
+    # -- membership, transfer, reads ------------------------------------------------------
+    def add_node(self) -> int:
+        """Start a new node (id: one above the highest) that knows the bootstrap voters and is
+        not a member: it takes part once a leader adds it (``propose_conf_change`` with
+        ``ConfChange(ConfChangeType.ADD_LEARNER, id)``) and it receives the log. Returns its id."""
+        k = max(self.ids) + 1
+        self.ids = (*self.ids, k)
+        self.n = len(self.ids)
+        self.configs[k] = RaftConfig(
+            id=k, peers=tuple(p for p in self.ids if p != k), voters=self._boot, **self._raft_kw
+        )
+        self.storage[k] = MemoryStorage()
+        self._incarnation[k] = 0
+        self._applied[k] = []
+        self._start(k)
+        return k
+
+    def conf_state(self, i: int) -> ConfState:
+        """Node i's configuration (from its storage if it is down)."""
+        self._check_id(i)
+        node = self.nodes.get(i)
+        if node is not None:
+            return node.conf_state
+        return RaftNode(self.configs[i], self.storage[i], random.Random(0)).conf_state
+
+    def propose_conf_change(self, cc: ConfChange, via: int | None = None) -> int:
+        """Propose a configuration change at the leader (or node ``via``); returns its index.
+        Raises as `RaftNode.propose_conf_change` does (`NotLeader` if there is no leader)."""
+        target = self.leader() if via is None else via
+        node = self.nodes.get(target) if target is not None else None
+        if node is None:
+            raise NotLeader(target or 0, None)
+        index = node.propose_conf_change(cc)
+        self._process(target)  # type: ignore[arg-type]
+        return index
+
+    def transfer_leader(self, to: int) -> None:
+        """The current leader hands over to ``to`` (`RaftNode.transfer_leader`)."""
+        self._check_id(to)
+        lead = self.leader()
+        if lead is None:
+            raise NotLeader(0, None)
+        self.nodes[lead].transfer_leader(to)  # type: ignore[union-attr]
+        self._process(lead)
+
+    def read_index(self, via: int) -> int | None:
+        """A linearizable read at node ``via``; returns its ctx (the answer appears in
+        ``read_states[ctx]``: node, read index, time), or None if ``via`` is down or knows no
+        leader. The invariant checker verifies the answer covers every commit made before."""
+        self._check_id(via)
+        node = self.nodes.get(via)
+        if node is None or via in self._held:
+            return None
+        ctx = len(self._reads) + 1
+        try:
+            node.read_index(ctx)
+        except NotLeader:
+            return None
+        self._reads[ctx] = (self.loop.now, len(self.checker.committed) - 1 if self.checker else 0)
+        self._process(via)
+        return ctx
+
+    def _read_answered(self, i: int, node: RaftNode, index: int, ctx: int) -> None:
+        asked = self._reads.get(ctx)
+        if asked is None or ctx in self.read_states:
+            return
+        self.read_states[ctx] = (i, index, self.loop.now)
+        if self.checker:
+            self.checker.read_answered(self.loop.now, i, ctx, index, asked[1], node.log.applied)
 
     # -- faults ---------------------------------------------------------------------------
     def _check_id(self, i: int) -> None:

@@ -125,7 +125,7 @@ class OutageConfig(_Strict):
 
 
 class FaultConfig(_Strict):
-    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss"]
+    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss", "transfer-leader"]
     at_s: float = Field(ge=0)
     drone: int | None = None
     groups: list[list[int]] = Field(default_factory=list)

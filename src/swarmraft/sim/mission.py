@@ -11,7 +11,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
+from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.raft import Entry, EntryKind
+from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario
@@ -129,6 +131,8 @@ class Mission:
             w.uwb,
         )
         link = LinkModel.of(sc.network)
+        committee = sc.protocol.committee
+        conf = initial_committee(range(1, n + 1), committee) if committee else None
         self.cluster = Cluster(
             n,
             seed=sc.seed,
@@ -137,7 +141,11 @@ class Mission:
             heartbeat_tick=sc.raft.heartbeat_tick,
             network=link,
             on_apply=self._on_apply,
+            raft_options={"voters": conf.voters, "learners": conf.learners} if conf else None,
         )
+        # the committee's leader: when it last heard from each drone (ms), and since when it leads
+        self._heard: dict[int, float] = {}
+        self._heard_by: int | None = None
         self.window_steps = w.window_steps
         self.innovation_sigma = w.innovation_sigma
         self.calibration = w.calibration
@@ -218,6 +226,8 @@ class Mission:
         accepted = drone.receive(rep)
         if accepted:
             sender = rep.drone + 1
+            if node == self._heard_by:
+                self._heard[sender] = self.cluster.now
             if sender == node:
                 self._acked.add((sender, rep.step))
             else:
@@ -235,6 +245,33 @@ class Mission:
             return
         self.log.term[k] = self.cluster.nodes[lead].term
         self._propose(lead, k)
+        if self.sc.protocol.committee:
+            self._committee(lead)
+
+    def _committee(self, lead: int) -> None:
+        """The leader keeps the committee whole (`protocol.committee`): it notes whom it heard
+        from (Raft answers in the last check-quorum period, or a report) and proposes the one
+        change the rules ask for, if any (a change still pending is refused: retried next step)."""
+        c, now = self.cluster, self.cluster.now
+        node = c.nodes[lead]
+        assert node is not None
+        if self._heard_by != lead:  # a new leader starts with everyone just heard
+            self._heard, self._heard_by = dict.fromkeys(c.ids, now), lead
+        for i, pr in node.prs.items():
+            if pr.recent_active:  # answered in the current check-quorum period
+                self._heard[i] = now
+        conf, last, gap = node.conf_state, node.log.last_index(), node.config.promote_gap
+        caught_up = [lr for lr in conf.learners if lr in node.prs and node.prs[lr].match + gap >= last]
+        silent = {i: (now - t) / 1000 for i, t in self._heard.items()}
+        pc = self.sc.protocol
+        cc = next_change(conf, lead, c.ids, silent, caught_up, pc.committee, pc.committee_dead_after_s)
+        if cc is None:
+            return
+        try:
+            c.propose_conf_change(cc, via=lead)
+        except (ConfChangeRefused, NotLeader):
+            return
+        self.log.events.append((now / 1000, f"committee: {cc.type.value} drone {cc.node}"))
 
     def _propose(self, lead: int, k: int) -> None:
         node = self.cluster.nodes[lead]
@@ -244,7 +281,7 @@ class Mission:
 
     # -- applying ---------------------------------------------------------------------------
     def _on_apply(self, node: int, entry: Entry) -> None:
-        if entry.kind == EntryKind.NOOP:
+        if entry.kind != EntryKind.NORMAL:  # a no-op, or a membership change
             return
         i = node - 1
         rec = self.drones[i].apply(entry.data)

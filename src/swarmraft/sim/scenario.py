@@ -14,6 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from swarmraft.estimation.registry import detector_params, get_detector
+from swarmraft.protocol.committee import check_size
 
 #: a scenario's name names its output folder: one path component, no leading dot
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
@@ -104,6 +105,12 @@ class ProtocolTimeConfig(_Strict):
     deadline_ms: float = Field(60.0, gt=0, description="leader waits for reports this long")
     innovation_window_s: float = Field(5.0, gt=0, description="INS prediction window of the gate")
     innovation_gate: float = Field(25.9, ge=0, description="chi-square 3 dof threshold; 0: off")
+    committee: int = Field(
+        0, ge=0, description="voters (odd, at most 7; the rest are Raft learners); 0: every drone votes"
+    )
+    committee_dead_after_s: float = Field(
+        1.0, gt=0, description="a voter the leader has not heard from this long is replaced"
+    )
 
 
 class SpoofConfig(_Strict):
@@ -203,6 +210,11 @@ class Scenario(_Strict):
                 raise ValueError(f"fault[{k}].for_s: pause needs a duration")
             if f.kind != "pause" and f.for_s is not None:
                 raise ValueError(f"fault[{k}].for_s: only a pause has a duration")
+        if self.protocol.committee:
+            try:
+                check_size(self.protocol.committee)
+            except ValueError as exc:
+                raise ValueError(f"protocol.committee: {exc}") from None
         if self.raft.heartbeat_tick >= self.raft.election_tick:
             raise ValueError("raft.heartbeat_tick: must be below election_tick")
         try:

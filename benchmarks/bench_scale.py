@@ -5,12 +5,14 @@ process's peak memory (issue: Raft for a living swarm).
 Targets for 64 drones: the whole mission, outputs and figures included, within 2x real time
 (120 s) and 400 MB peak. The mission: formation flight at 10 Hz, 3 drones spoofed by 40 m from
 a sixth of the way in, the leader crashed half way, every safety invariant of Raft checked
-after every event; every drone is a Raft voter (no committee yet).
+after every event; a committee of ``--committee`` voters (5; 0: every drone votes), every
+other drone a Raft learner.
 
 One run per invocation (a run of 64 drones takes minutes); the machine's speed drifts by up
 to 1.5x between minutes, so compare runs taken one after another.
 
-Run: .venv/bin/python benchmarks/bench_scale.py [--drones 64] [--seconds 60]
+Run: .venv/bin/python benchmarks/bench_scale.py [--drones 64] [--seconds 60] [--committee 5]
+[--detector joint]
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--drones", type=int, default=64)
     ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--committee", type=int, default=5, help="voters (odd, <= 7); 0: every drone")
+    ap.add_argument("--detector", default="joint")
     args = ap.parse_args()
     sc = Scenario(
         name=f"scale-{args.drones}",
@@ -46,6 +50,7 @@ def main() -> None:
         seed=1,
         spoof=[{"kind": "jump", "drones": [3, 9, 17], "start_s": args.seconds / 6, "magnitude": 40}],
         fault=[{"kind": "crash-leader", "at_s": args.seconds / 2}],
+        protocol={"committee": args.committee, "detector": args.detector},
     )
     run_mission(Scenario(drones=5, duration_s=0.5, seed=1))  # warm-up (numba, imports)
     phases: list[tuple[str, float, float]] = []
@@ -63,7 +68,8 @@ def main() -> None:
         timed("figures", mission_figures, result, Path(tmp))
     total = sum(p[1] for p in phases)
     fast = total <= TARGET_REAL_TIME * args.seconds
-    print(f"{args.seconds:g} s mission, {args.drones} drones (all voters):")
+    voters = f"a committee of {args.committee}" if args.committee else "all voters"
+    print(f"{args.seconds:g} s mission, {args.drones} drones ({voters}, {args.detector}):")
     for name, wall, mb in phases:
         print(f"  {name:9s} {wall:7.1f} s   peak so far {mb:6.0f} MB")
     print(

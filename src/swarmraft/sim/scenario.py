@@ -143,7 +143,7 @@ class FaultConfig(_Strict):
 class Scenario(_Strict):
     name: str = Field("mission", pattern=NAME_PATTERN, description="names the output folder")
     seed: int = Field(1, ge=0)
-    drones: int = Field(9, ge=4, le=64)
+    drones: int = Field(9, ge=4, le=256)
     duration_s: float = Field(60.0, gt=0)
     dt_s: float = Field(0.1, gt=0, description="step, s (10 Hz)")
     motion: MotionConfig = Field(default_factory=MotionConfig)

@@ -4,7 +4,8 @@ global randomness. Knows nothing of drones."""
 from swarmraft.raft.log import RaftLog, RaftSafetyError
 from swarmraft.raft.node import RaftNode
 from swarmraft.raft.progress import Inflights, Progress
-from swarmraft.raft.storage import MemoryStorage, SQLiteStorage, Storage
+from swarmraft.raft.snapshots import SnapshotPolicy, pack_entries, unpack_entries
+from swarmraft.raft.storage import Compacted, MemoryStorage, SQLiteStorage, Storage
 from swarmraft.raft.types import (
     Entry,
     EntryKind,
@@ -16,10 +17,12 @@ from swarmraft.raft.types import (
     RaftConfig,
     Ready,
     Role,
+    Snapshot,
     Status,
 )
 
 __all__ = [
+    "Compacted",
     "Entry",
     "EntryKind",
     "HardState",
@@ -37,6 +40,10 @@ __all__ = [
     "Ready",
     "Role",
     "SQLiteStorage",
+    "Snapshot",
+    "SnapshotPolicy",
     "Status",
     "Storage",
+    "pack_entries",
+    "unpack_entries",
 ]

@@ -10,6 +10,12 @@ entries the follower still lacks, pipelines appends within a window per follower
 proposals beyond a cap on uncommitted bytes (`ProposalDropped`). A new commit index travels
 with the next append or heartbeat, never in a message of its own, and a follower that gets
 appends gets no heartbeats until it has heard nothing for ``flow_heartbeat_tick`` ticks.
+
+Snapshots (InstallSnapshot): the host snapshots its state machine and compacts the log
+(`Storage.create_snapshot`); a follower that needs an entry the leader no longer holds gets
+the leader's stored snapshot in a MsgSnap, installs it if it is newer than its commit index
+(`Ready.snapshot`, persisted and restored by the host before any entry is applied) and
+acknowledges its index with a MsgAppResp.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from swarmraft.raft.types import (
     RaftConfig,
     Ready,
     Role,
+    Snapshot,
     Status,
 )
 
@@ -108,6 +115,7 @@ class RaftNode:
         return bool(
             self.msgs
             or log.unstable
+            or log.pending is not None
             or self.term != p.term
             or self.vote != p.vote
             or log.committed != p.commit
@@ -124,11 +132,14 @@ class RaftNode:
             entries=self.log.unstable_entries(),
             committed=tuple(self.log.next_committed()),
             messages=tuple(self.msgs),
+            snapshot=self.log.pending,
         )
 
     def advance(self, rd: Ready) -> None:
         if rd.hard_state is not None:
             self._persisted_hs = rd.hard_state
+        if rd.snapshot is not None:
+            self.log.snapshot_applied(rd.snapshot)
         if rd.entries:
             last = rd.entries[-1]
             self.log.stable_to(last.index, last.term)
@@ -157,7 +168,7 @@ class RaftNode:
                     return  # we heard from a live leader recently: ignore the disruption
             if m.type == MsgType.PRE_VOTE or (m.type == MsgType.PRE_VOTE_RESP and not m.reject):
                 pass  # pre-votes never change our term
-            elif m.type in (MsgType.APP, MsgType.HEARTBEAT):
+            elif m.type in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP):
                 self._become_follower(m.term, m.frm)
             else:
                 self._become_follower(m.term, None)
@@ -165,6 +176,7 @@ class RaftNode:
             if (self.config.check_quorum or self.config.pre_vote) and m.type in (
                 MsgType.APP,
                 MsgType.HEARTBEAT,
+                MsgType.SNAP,
             ):
                 # tell a stale leader about the newer term so it steps down
                 self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term))
@@ -326,6 +338,8 @@ class RaftNode:
         pr = self.prs[to]
         if not pr.can_send():
             return False
+        if pr.next < self.log.first_index():
+            return self._send_snapshot(to, pr)
         entries = self._entries_from(pr.next)
         if not entries and not send_if_empty:
             return False
@@ -348,6 +362,14 @@ class RaftNode:
         elif entries:
             pr.next = entries[-1].index + 1
             pr.inflights.add(pr.next - 1, sum(len(e.data) for e in entries))
+        return True
+
+    def _send_snapshot(self, to: int, pr: Progress) -> bool:
+        """The follower needs entries we compacted: send our stored snapshot instead."""
+        snap: Snapshot = self.log.storage.snapshot()
+        self._send(Message(MsgType.SNAP, self.id, to, self.term, snapshot=snap))
+        pr.become_snapshot(snap.index)
+        pr.silent, pr.flowing = 0, False
         return True
 
     def _maybe_commit(self, acked: int | None = None) -> bool:
@@ -377,6 +399,10 @@ class RaftNode:
                     self._send_append(m.frm)
                 return
             if pr.maybe_update(m.index) or (pr.probe and m.index == pr.match):
+                if pr.pending_snapshot:
+                    if pr.match + 1 < self.log.first_index():
+                        return  # still short of our log: wait for the snapshot's answer
+                    pr.pending_snapshot = 0
                 if pr.probe:
                     pr.become_replicate()
                 else:
@@ -388,6 +414,8 @@ class RaftNode:
         elif m.type == MsgType.HEARTBEAT_RESP:
             pr.recent_active = True
             pr.paused = False
+            if pr.pending_snapshot:  # the snapshot or its answer may be lost: probe again
+                pr.become_probe()
             if not pr.probe and pr.inflights.full():
                 pr.inflights.free_first()
             # A follower that lacks entries after a heartbeat lost an append or its answer,
@@ -429,6 +457,9 @@ class RaftNode:
         elif m.type == MsgType.HEARTBEAT:
             self._become_follower(m.term, m.frm)
             self._handle_heartbeat(m)
+        elif m.type == MsgType.SNAP:
+            self._become_follower(m.term, m.frm)
+            self._handle_snapshot(m)
         elif (m.type == MsgType.VOTE_RESP and self.role == Role.CANDIDATE) or (
             m.type == MsgType.PRE_VOTE_RESP and self.role == Role.PRE_CANDIDATE
         ):
@@ -448,6 +479,10 @@ class RaftNode:
             self.election_elapsed = 0
             self.lead = m.frm
             self._handle_heartbeat(m)
+        elif m.type == MsgType.SNAP:
+            self.election_elapsed = 0
+            self.lead = m.frm
+            self._handle_snapshot(m)
 
     def _handle_append(self, m: Message) -> None:
         if m.index < self.log.committed:
@@ -472,6 +507,19 @@ class RaftNode:
     def _handle_heartbeat(self, m: Message) -> None:
         self.log.commit_to(min(m.commit, self.log.last_index()))
         self._send(Message(MsgType.HEARTBEAT_RESP, self.id, m.frm, self.term))
+
+    def _handle_snapshot(self, m: Message) -> None:
+        """Install the leader's snapshot unless our log already holds what it covers; either
+        way acknowledge the index we now hold committed."""
+        snap = m.snapshot
+        assert snap is not None
+        if snap.index <= self.log.committed:
+            pass  # older than what we have committed: nothing to do
+        elif self.log.match_term(snap.index, snap.term):
+            self.log.commit_to(snap.index)  # we hold its last entry: our log covers it
+        else:
+            self.log.restore(snap)
+        self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=self.log.committed))
 
     def _send(self, m: Message) -> None:
         self.msgs.append(m)

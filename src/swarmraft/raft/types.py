@@ -28,6 +28,21 @@ class HardState(NamedTuple):
     commit: int = 0
 
 
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """The state machine at log index ``index`` (of term ``term``): ``data`` is the host's
+    encoding of it (the core never reads it). Index 0 is "no snapshot".
+
+    # membership: the configuration in force at ``index`` goes here once membership changes
+    # exist: ``voters`` and ``learners`` (empty: the static `RaftConfig` peers)."""
+
+    index: int = 0
+    term: int = 0
+    data: bytes = b""
+    voters: tuple[int, ...] = ()
+    learners: tuple[int, ...] = ()
+
+
 class MsgType(StrEnum):
     PROP = "MsgProp"  # a proposal forwarded to the leader
     APP = "MsgApp"
@@ -38,6 +53,8 @@ class MsgType(StrEnum):
     PRE_VOTE_RESP = "MsgPreVoteResp"
     HEARTBEAT = "MsgHeartbeat"
     HEARTBEAT_RESP = "MsgHeartbeatResp"
+    # InstallSnapshot: the leader's snapshot for a follower behind its log (answer: MsgAppResp)
+    SNAP = "MsgSnap"
 
 
 @dataclass(slots=True)
@@ -59,6 +76,7 @@ class Message:
     commit: int = 0
     reject: bool = False
     reject_hint: int = 0
+    snapshot: Snapshot | None = None  # MsgSnap only
 
 
 class Role(StrEnum):
@@ -70,18 +88,21 @@ class Role(StrEnum):
 
 @dataclass(slots=True)
 class Ready:
-    """Work for the host, in this order: persist ``hard_state`` (if not None) and
-    ``entries`` (they replace any stored entries from their first index on), then send
-    ``messages``, then apply ``committed``, then call ``advance(ready)``. Messages may depend on
-    the state in the same Ready, so they must not leave before it is persisted."""
+    """Work for the host, in this order: persist ``snapshot`` (if not None: a leader's
+    snapshot this follower installs; it replaces the whole stored log), ``hard_state`` (if
+    not None) and ``entries`` (they replace any stored entries from their first index on),
+    then send ``messages``, then restore the state machine from ``snapshot`` and apply
+    ``committed``, then call ``advance(ready)``. Messages may depend on the state in the same
+    Ready, so they must not leave before it is persisted."""
 
     hard_state: HardState | None
     entries: tuple[Entry, ...]
     committed: tuple[Entry, ...]
     messages: tuple[Message, ...]
+    snapshot: Snapshot | None = None
 
     def __bool__(self) -> bool:
-        return bool(self.hard_state or self.entries or self.committed or self.messages)
+        return bool(self.snapshot or self.hard_state or self.entries or self.committed or self.messages)
 
 
 @dataclass(frozen=True)

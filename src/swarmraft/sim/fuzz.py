@@ -1,9 +1,10 @@
 """Randomised fault runs that try to break Raft: crashes (some mid-Ready, some restarted at
 once), partitions, one-way cuts, loss, duplication and deep reordering, on 3-7 nodes with
 PreVote and CheckQuorum drawn per seed, appends of 1-4 entries and, in some seeds, logs of
-thousands of entries. Every safety invariant is checked after every event; once the faults
-stop, liveness (a leader within two election timeouts, then no term change) and convergence
-(every committed entry on every node) are checked.
+thousands of entries, and snapshots with log compaction every few entries (so crashed and
+lagging followers catch up by InstallSnapshot). Every safety invariant is checked after every
+event; once the faults stop, liveness (a leader within two election timeouts, then no term
+change) and convergence (every committed entry on every node) are checked.
 
 A run is fully determined by its seed: a failing seed replays exactly
 (``swarmraft raft-fuzz --seed-start S --seeds 1``).
@@ -15,7 +16,7 @@ import random
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from swarmraft.raft import RaftSafetyError
+from swarmraft.raft import RaftSafetyError, SnapshotPolicy
 from swarmraft.sim.invariants import InvariantViolation
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -56,6 +57,9 @@ class FuzzConfig:
     pre_vote: bool | None = None
     check_quorum: bool | None = None
     heavy: float = 0.1
+    # the fraction of seeds whose nodes snapshot and compact: every 2-20 entries (50-500 in
+    # heavy seeds), keeping up to a quarter of that many entries below the snapshot
+    snapshots: float = 0.8
     p_batch: float = 0.15  # a heavy seed's batch of 100-500 entries, until it has proposed 1000-3000
     p_crash: float = 0.05
     p_bounce: float = 0.04  # crash and restart at the same instant
@@ -89,6 +93,8 @@ class FuzzResult:
     check_quorum: bool = False
     max_entries_per_msg: int = 0
     last_index: int = 0  # the longest log at the end
+    snapshot_every: int = 0  # 0: no snapshots in this seed
+    snapshots_installed: int = 0  # by followers, from a leader
 
     @property
     def ok(self) -> bool:
@@ -113,6 +119,10 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
     inflight = rng.choice((1, 2, 8)) if rng.random() < 0.5 else 256
     pre_vote = cfg.pre_vote if cfg.pre_vote is not None else rng.random() < 0.5
     check_quorum = cfg.check_quorum if cfg.check_quorum is not None else rng.random() < 0.5
+    # drawn from their own generator so that the seeds' other draws stay as they were
+    srng = random.Random(seed * 104_729 + 3)
+    every = (srng.randint(50, 500) if heavy else srng.randint(2, 20)) if srng.random() < cfg.snapshots else 0
+    policy = SnapshotPolicy(every, srng.randint(0, every // 4)) if every else None
     link = LinkModel(
         loss=loss,
         duplicate=rng.uniform(0.0, 0.1),
@@ -132,12 +142,13 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
             "max_inflight_msgs": inflight,
         },
         without=cfg.without,
+        snapshots=policy,
         on_apply=lambda _i, e: committed.add(e.data) if e.data else None,
     )
     stats = {"proposals": 0, "crashes": 0, "partitions": 0}
 
     def result(ok: bool, error: str | None = None, invariant: str | None = None) -> FuzzResult:
-        last = max(len(c.log(i)) for i in c.ids)
+        last = max(c.last_index(i) for i in c.ids)
         return FuzzResult(
             seed,
             c.loop.events,
@@ -153,6 +164,8 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
             check_quorum,
             per_msg,
             last,
+            every,
+            c.snapshots_installed,
         )
 
     try:

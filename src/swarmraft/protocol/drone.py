@@ -105,7 +105,7 @@ class Applied:
                 (size,) = _U32.unpack_from(data, off)
                 off += _U32.size
                 if off + size > len(data):
-                    raise ValueError("a record runs past the end")
+                    raise ValueError("drone state: a record runs past the end")
                 rec = StepRecord.decode(bytes(data[off : off + size]))
                 records[rec.step] = rec
                 off += size

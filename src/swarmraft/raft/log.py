@@ -141,10 +141,8 @@ class RaftLog:
             self.committed = index
 
     def restore(self, snap: Snapshot) -> None:
-        """Install a leader's snapshot (newer than our commit index): the log is replaced by
-        it, to be persisted with the next Ready."""
-        if snap.index <= self.committed:
-            raise RaftSafetyError(f"snapshot {snap.index} at or below commit {self.committed}")
+        """Install a leader's snapshot (the node checked that it is newer than our commit
+        index): the log is replaced by it, to be persisted with the next Ready."""
         self._mark(self.committed + 1)  # what we held after our commit index is replaced
         self.pending = snap
         self.unstable = []

@@ -62,7 +62,7 @@ def unpack_entries(data: bytes) -> list[Entry]:
             term, index, kind, size = _ENTRY.unpack_from(data, off)
             off += _ENTRY.size
             if off + size > len(data):
-                raise ValueError("entry data runs past the end")
+                raise ValueError("unpack_entries: entry data runs past the end")
             out.append(Entry(term, index, bytes(data[off : off + size]), _KINDS[kind]))
             off += size
     except (struct.error, IndexError) as exc:

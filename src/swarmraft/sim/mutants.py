@@ -166,7 +166,7 @@ MUTANTS: tuple[Mutant, ...] = (
     ),
     Mutant(
         "compacted-entries-sent",
-        "a leader sends appends from its compaction point instead of its snapshot (an entry it no longer holds)",
+        "a leader appends from its compaction point (an entry it no longer holds) instead of snapshotting",
         "node.py",
         "        if pr.next < self.log.first_index():",
         "        if pr.next < self.log.first_index() - 1:",

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from swarmraft.net import wire
 from swarmraft.net.wire import MAX_DATAGRAM, MAX_PAYLOAD, Kind, WireError
 from swarmraft.protocol.records import Report
-from swarmraft.raft.types import Entry, EntryKind, Message, MsgType
+from swarmraft.raft.types import Entry, EntryKind, Message, MsgType, Snapshot
 
 U32, U64 = 2**32 - 1, 2**64 - 1
 SIG = bytes(range(64))
@@ -24,9 +24,17 @@ entries = st.builds(
     data=st.binary(max_size=300),
     kind=st.sampled_from(EntryKind),
 )
+snapshots = st.builds(
+    Snapshot,
+    index=st.integers(0, U64),
+    term=st.integers(0, U64),
+    data=st.binary(max_size=300),
+    voters=st.lists(st.integers(0, U32), max_size=7).map(tuple),
+    learners=st.lists(st.integers(0, U32), max_size=7).map(tuple),
+)
 messages = st.builds(
     Message,
-    type=st.sampled_from(MsgType),
+    type=st.sampled_from([t for t in MsgType if t != MsgType.SNAP]),
     frm=st.integers(0, U32),
     to=st.integers(0, U32),
     term=st.integers(0, U64),
@@ -37,6 +45,12 @@ messages = st.builds(
     reject=st.booleans(),
     reject_hint=st.integers(0, U64),
     force=st.booleans(),
+)
+# MsgSnap carries a snapshot (and only it does)
+messages = messages | st.builds(
+    lambda m, s: Message(MsgType.SNAP, m.frm, m.to, m.term, m.log_term, m.index, m.entries, snapshot=s),
+    messages,
+    snapshots,
 )
 floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
@@ -82,7 +96,8 @@ def test_every_raft_message_round_trips(msg):
 
 @pytest.mark.parametrize("t", list(MsgType))
 def test_every_message_type_has_a_wire_code(t):
-    msg = Message(t, 1, 2, 3, 4, 5, (Entry(1, 6, b"x", EntryKind.NOOP),), 7, True, 8)
+    snap = Snapshot(9, 3, b"s", (1, 2, 3)) if t == MsgType.SNAP else None
+    msg = Message(t, 1, 2, 3, 4, 5, (Entry(1, 6, b"x", EntryKind.NOOP),), 7, True, 8, snapshot=snap)
     assert wire.decode_message(wire.encode_message(msg)) == msg
 
 
@@ -220,7 +235,7 @@ def raft_payload() -> bytearray:
 
 
 def test_unknown_message_type_entry_kind_and_flags_are_refused():
-    for code in (0, 13, 255):
+    for code in (0, 14, 255):
         p = raft_payload()
         p[0] = code
         assert reason(wire.decode_message, bytes(p)) == "bad_value"
@@ -332,3 +347,14 @@ def test_an_acknowledgement_of_another_length_or_out_of_range_is_refused():
         wire.encode_payload(wire.ReportAck(-1, 2))
     with pytest.raises(WireError):
         wire.encode_payload(wire.ReportAck(1, 2**32))
+
+
+def test_a_snapshot_goes_with_msgsnap_only_and_a_cut_one_is_refused():
+    with pytest.raises(WireError, match="MsgSnap"):
+        wire.encode_message(Message(MsgType.SNAP, 1, 2, 3))
+    with pytest.raises(WireError, match="MsgSnap"):
+        wire.encode_message(Message(MsgType.APP, 1, 2, 3, snapshot=Snapshot(4, 3, b"s")))
+    snap = Snapshot(4, 3, b"state", (1, 2), (3,))
+    whole = wire.encode_message(Message(MsgType.SNAP, 1, 2, 3, snapshot=snap))
+    with pytest.raises(WireError, match="truncated"):
+        wire.decode_message(whole[:-1])

@@ -40,7 +40,12 @@ def suite(*args: str):
 
 
 def test_cheap_mutants_are_caught_by_the_fuzzer_alone_and_the_unmodified_core_passes():
-    cheap = [m.name for m in MUTANTS if m.only_by] + ["quorum-of-half", "vote-not-persisted"]
+    cheap = [m.name for m in MUTANTS if m.only_by] + [
+        "quorum-of-half",
+        "vote-not-persisted",
+        "snapshot-wrong-term",
+        "restart-reapplies-snapshot",
+    ]
     r = suite("--seeds", "150", *(a for m in cheap for a in ("--mutant", m)))
     assert r.exit_code == 0, r.output
     assert f"{len(cheap)} of {len(cheap)} mutants caught" in r.output

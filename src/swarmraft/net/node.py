@@ -62,8 +62,10 @@ from swarmraft.raft import (
     RaftConfig,
     RaftNode,
     Role,
+    Snapshot,
     SQLiteStorage,
 )
+from swarmraft.sim.mission import MISSION_SNAPSHOTS
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.sim.sensing import ScenarioWorld
 
@@ -214,7 +216,11 @@ class DroneHost:
         self._reports: dict[int, Report | None] = {}  # step -> its report, kept 2 steps for resends
         self._heard: dict[int, float] = {}  # peer -> monotonic time of its last accepted datagram
         self._acked: set[int] = set()  # steps whose report the leader acknowledged
-        self._to_apply: deque[Entry] = deque()  # committed, waiting for the drone to be free
+        # committed entries (and a leader's snapshot to restore), waiting for the drone to be free
+        self._to_apply: deque[Entry | Snapshot] = deque()
+        self.snapshots = MISSION_SNAPSHOTS  # as in the simulator: every 1000 entries, keeping 500
+        self._applied_index = 0  # the last log index the drone's state holds
+        self._snap_index = 0  # the index of the stored snapshot
         self._reply_limit = ReplyLimit()
         self._up_since = time.monotonic()
 
@@ -288,6 +294,9 @@ class DroneHost:
         self._stopped = loop.create_future()
         try:
             hs = self.storage.initial_state()
+            # the drone's state from the stored snapshot; the node applies the tail after it
+            if (snap := self.storage.snapshot()).index:
+                self._restore(snap)
             self.node = RaftNode(self.raft_config, self.storage, random.Random(int.from_bytes(os.urandom(8))))
             # Above every sequence number an earlier run sent: microseconds of the wall clock
             # (a run sends a few hundred datagrams a second, far fewer than a million).
@@ -413,9 +422,11 @@ class DroneHost:
                         self.counters["internal_error"] += 1
                         _logger.exception("drone %d: a node event failed", self.id)
                 while (rd := node.ready()) is not None:
-                    if rd.hard_state is not None or rd.entries:
+                    if rd.hard_state is not None or rd.entries or rd.snapshot is not None:
                         t0 = time.perf_counter()
-                        await loop.run_in_executor(self._disk, storage.save, rd.hard_state, rd.entries)
+                        await loop.run_in_executor(
+                            self._disk, storage.save, rd.hard_state, rd.entries, rd.snapshot
+                        )
                         self._time("save", t0)
                     for m in rd.messages:
                         self._send_raft(m)
@@ -424,9 +435,24 @@ class DroneHost:
                     # leader that waited here would send no heartbeats for as long as a
                     # verification takes, up to a second on a loaded machine, and lose its
                     # followers to an election).
+                    if rd.snapshot is not None:
+                        self._to_apply.append(rd.snapshot)
                     self._to_apply.extend(rd.committed)
                     self._apply_queued()
                     node.advance(rd)
+                    plan = self.snapshots.plan(self._applied_index, self._snap_index, storage.first_index())
+                    if plan is not None:  # on the disk thread, between saves
+                        self._snap_index = plan[0]
+                        t0 = time.perf_counter()
+                        await loop.run_in_executor(
+                            self._disk,
+                            storage.create_snapshot,
+                            plan[0],
+                            self.drone.snapshot(),
+                            plan[1],
+                            node.conf_state_at(plan[0]),
+                        )
+                        self._time("snapshot", t0)
                 self._note_role()
             if self._stopping:
                 return
@@ -707,7 +733,38 @@ class DroneHost:
         self.counters[f"{what}_ms_max"] = max(self.counters[f"{what}_ms_max"], round(ms))
 
     # -- applying ---------------------------------------------------------------------------
-    def _apply(self, entry: Entry) -> None:
+    def _restore(self, snap: Snapshot) -> None:
+        """The drone's replicated state from a snapshot (its own on restart, or the leader's);
+        the snapshot's records not yet in the step file are written to it."""
+        self.drone.restore(snap.data)
+        self._applied_index = self._snap_index = snap.index
+        for rec in self.drone.state.records.values():
+            data = rec.encode()
+            self._write_step(
+                {
+                    "step": rec.step,
+                    "committed": True,
+                    "status": rec.status,
+                    "term": rec.term,
+                    "record": record_hash(data),
+                    "digest": rec.digest,
+                    "detector": rec.detector,
+                    "faulty": _ids(rec.faulty),
+                    "missing": _ids(rec.missing),
+                    "positions": _jsonable(rec.positions),
+                    "hpl": _levels(rec.hpl),
+                    "vpl": _levels(rec.vpl),
+                    "reported": self._reported.get(rec.step),
+                    "applied_unix_s": round(time.time(), 4),
+                    "from_snapshot": snap.index,
+                }
+            )
+
+    def _apply(self, entry: Entry | Snapshot) -> None:
+        if isinstance(entry, Snapshot):
+            self._restore(entry)
+            return
+        self._applied_index = entry.index
         if entry.kind == EntryKind.NOOP:
             return
         before = self.drone.state.last_step

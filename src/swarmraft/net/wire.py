@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from swarmraft.protocol.records import Report
-from swarmraft.raft.types import Entry, EntryKind, Message, MsgType
+from swarmraft.raft.types import Entry, EntryKind, Message, MsgType, Snapshot
 
 MAGIC = b"SR"
 VERSION = 1
@@ -46,9 +46,12 @@ _U32 = 2**32 - 1
 _U64 = 2**64 - 1
 
 # Raft message: type, flags (bit 0: reject, bit 1: force), frm, to, term, log_term, index, commit,
-# reject_hint, number of entries; then each entry: term, index, kind, data length, data.
+# reject_hint, number of entries; then each entry: term, index, kind, data length, data;
+# then, for MsgSnap only, the snapshot: index, term, number of voters, of learners, data
+# length, the voter and learner ids (u32 each), the data.
 _MESSAGE = struct.Struct("<BBIIQQQQQI")
 _ENTRY = struct.Struct("<QQBI")
+_SNAPSHOT = struct.Struct("<QQHHI")
 _REJECT = 0x01
 _FORCE = 0x02
 
@@ -66,6 +69,7 @@ _MSG_CODES: dict[MsgType, int] = {
     MsgType.TIMEOUT_NOW: 10,
     MsgType.READ_INDEX: 11,
     MsgType.READ_INDEX_RESP: 12,
+    MsgType.SNAP: 13,
 }
 _MSG_TYPES = {code: t for t, code in _MSG_CODES.items()}
 _KIND_CODES: dict[EntryKind, int] = {EntryKind.NORMAL: 0, EntryKind.NOOP: 1, EntryKind.CONF_CHANGE: 2}
@@ -224,6 +228,16 @@ def encode_message(msg: Message) -> bytes:
             raise WireError("bad_value", f"entry data is a {type(e.data).__name__}, not bytes")
         parts.append(_ENTRY.pack(e.term, e.index, _KIND_CODES[e.kind], len(e.data)))
         parts.append(e.data)
+    if (msg.type == MsgType.SNAP) != (msg.snapshot is not None):
+        raise WireError("bad_value", "a snapshot goes with MsgSnap, and only with it")
+    if (s := msg.snapshot) is not None:
+        _check_int("snapshot index", s.index, _U64)
+        _check_int("snapshot term", s.term, _U64)
+        for i in (*s.voters, *s.learners):
+            _check_int("snapshot member", i, _U32)
+        parts.append(_SNAPSHOT.pack(s.index, s.term, len(s.voters), len(s.learners), len(s.data)))
+        parts.append(struct.pack(f"<{len(s.voters) + len(s.learners)}I", *s.voters, *s.learners))
+        parts.append(s.data)
     out = b"".join(parts)
     if len(out) > MAX_PAYLOAD:
         raise WireError("oversized", f"message of {len(out)} bytes, the most is {MAX_PAYLOAD}")
@@ -253,6 +267,9 @@ def decode_message(payload: bytes) -> Message:
             raise WireError("truncated", f"entry {len(entries)} data runs past the payload")
         entries.append(Entry(e_term, e_index, bytes(payload[off : off + length]), _ENTRY_KINDS[e_kind]))
         off += length
+    snap = None
+    if _MSG_TYPES[code] == MsgType.SNAP:
+        snap, off = _decode_snapshot(payload, off)
     if off != len(payload):
         raise WireError("trailing_bytes", f"{len(payload) - off} bytes after the last entry")
     return Message(
@@ -267,7 +284,21 @@ def decode_message(payload: bytes) -> Message:
         bool(flags & _REJECT),
         hint,
         bool(flags & _FORCE),
+        snap,
     )
+
+
+def _decode_snapshot(payload: bytes, off: int) -> tuple[Snapshot, int]:
+    if off + _SNAPSHOT.size > len(payload):
+        raise WireError("truncated", "the snapshot header runs past the payload")
+    index, term, n_voters, n_learners, length = _SNAPSHOT.unpack_from(payload, off)
+    off += _SNAPSHOT.size
+    ids_end = off + 4 * (n_voters + n_learners)
+    if ids_end + length > len(payload):
+        raise WireError("truncated", "the snapshot's members or data run past the payload")
+    ids = struct.unpack_from(f"<{n_voters + n_learners}I", payload, off)
+    data = bytes(payload[ids_end : ids_end + length])
+    return Snapshot(index, term, data, tuple(ids[:n_voters]), tuple(ids[n_voters:])), ids_end + length
 
 
 def encode_report(report: Report) -> bytes:

@@ -16,6 +16,7 @@ drone holds the same records.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -69,6 +70,57 @@ class Applied:
     last_step: int = -1
     ignored: int = 0  # records for a step already decided (re-proposals) or behind
 
+    def encode(self) -> bytes:
+        """The state as bytes, for a Raft snapshot (docs/protocol.md, Snapshots): a header
+        (magic b"SRAP", version 1, last_step i64, ignored u64, number of skipped steps u32),
+        the skipped steps (i64 each), the number of records (u32), then each record's length
+        (u32) and its `StepRecord.encode` bytes, oldest first. Little-endian; the same state
+        gives the same bytes."""
+        recs = [self.records[k].encode() for k in sorted(self.records)]
+        return b"".join(
+            [
+                _STATE_HEAD.pack(
+                    _STATE_MAGIC, _STATE_VERSION, self.last_step, self.ignored, len(self.skipped)
+                ),
+                struct.pack(f"<{len(self.skipped)}q", *self.skipped),
+                _U32.pack(len(recs)),
+                *(_U32.pack(len(r)) + r for r in recs),
+            ]
+        )
+
+    @classmethod
+    def decode(cls, data: bytes) -> Applied:
+        """The inverse of `encode`; ValueError naming what is wrong if ``data`` is not such bytes."""
+        try:
+            magic, version, last_step, ignored, n_skipped = _STATE_HEAD.unpack_from(data)
+            if magic != _STATE_MAGIC or version != _STATE_VERSION:
+                raise ValueError(f"drone state: magic {magic!r} version {version}, not {_STATE_MAGIC!r} 1")
+            off = _STATE_HEAD.size
+            skipped = list(struct.unpack_from(f"<{n_skipped}q", data, off))
+            off += 8 * n_skipped
+            (n_records,) = _U32.unpack_from(data, off)
+            off += _U32.size
+            records: dict[int, StepRecord] = {}
+            for _ in range(n_records):
+                (size,) = _U32.unpack_from(data, off)
+                off += _U32.size
+                if off + size > len(data):
+                    raise ValueError("drone state: a record runs past the end")
+                rec = StepRecord.decode(bytes(data[off : off + size]))
+                records[rec.step] = rec
+                off += size
+        except struct.error as exc:
+            raise ValueError(f"drone state: truncated ({exc})") from exc
+        if off != len(data):
+            raise ValueError(f"drone state: {len(data) - off} bytes after the last record")
+        return cls(records, skipped, last_step, ignored)
+
+
+_STATE_MAGIC = b"SRAP"
+_STATE_VERSION = 1
+_STATE_HEAD = struct.Struct("<4sBqQI")
+_U32 = struct.Struct("<I")
+
 
 class SwarmDrone:
     def __init__(self, index: int, config: ProtocolConfig, keys: Keyring) -> None:
@@ -82,6 +134,15 @@ class SwarmDrone:
         get_detector(config.detector)
 
     # -- every drone ------------------------------------------------------------------------
+    def snapshot(self) -> bytes:
+        """The replicated state (`Applied`) as bytes, for a Raft snapshot."""
+        return self.state.encode()
+
+    def restore(self, data: bytes) -> None:
+        """Take the replicated state from a snapshot (the drone's own on restart, or the
+        leader's); what the drone holds as leader (reports waiting) is not replicated and stays."""
+        self.state = Applied.decode(data)
+
     def make_report(
         self, step: int, position: np.ndarray, source: str, ranges: np.ndarray, innovation: np.ndarray | None
     ) -> Report:

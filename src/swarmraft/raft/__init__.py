@@ -5,7 +5,8 @@ from swarmraft.raft.log import RaftLog, RaftSafetyError
 from swarmraft.raft.membership import ConfChange, ConfChangeType, ConfState
 from swarmraft.raft.node import RaftNode
 from swarmraft.raft.progress import Inflights, Progress
-from swarmraft.raft.storage import MemoryStorage, SQLiteStorage, Storage
+from swarmraft.raft.snapshots import SnapshotPolicy, pack_entries, unpack_entries
+from swarmraft.raft.storage import Compacted, MemoryStorage, SQLiteStorage, Storage
 from swarmraft.raft.types import (
     ConfChangeRefused,
     Entry,
@@ -20,6 +21,7 @@ from swarmraft.raft.types import (
     ReadState,
     Ready,
     Role,
+    Snapshot,
     Status,
 )
 
@@ -28,6 +30,7 @@ __all__ = [
     "ConfChangeRefused",
     "ConfChangeType",
     "ConfState",
+    "Compacted",
     "Entry",
     "EntryKind",
     "HardState",
@@ -47,6 +50,10 @@ __all__ = [
     "Ready",
     "Role",
     "SQLiteStorage",
+    "Snapshot",
+    "SnapshotPolicy",
     "Status",
     "Storage",
+    "pack_entries",
+    "unpack_entries",
 ]

@@ -1,11 +1,12 @@
-"""The node's view of its log: what storage holds plus the unstable tail not yet persisted."""
+"""The node's view of its log: what storage holds (after its compaction point) plus the
+unstable part not yet persisted: a leader's snapshot being installed, then the tail."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from swarmraft.raft.storage import Storage
-from swarmraft.raft.types import Entry
+from swarmraft.raft.storage import Compacted, Storage
+from swarmraft.raft.types import Entry, Snapshot
 
 
 class RaftSafetyError(AssertionError):
@@ -18,10 +19,16 @@ class RaftLog:
         self.unstable: list[Entry] = []
         self.offset = storage.last_index() + 1  # index of unstable[0]
         self.committed = committed
-        self.applied = applied
+        # the host restores the state machine from the stored snapshot before it starts a node
+        self.applied = max(applied, storage.snapshot().index)
+        self.pending: Snapshot | None = None  # a leader's snapshot to install, not yet persisted
         self.dirty_from: int | None = None  # lowest index written since take_dirty()
 
     # -- reading --------------------------------------------------------------------------
+    def first_index(self) -> int:
+        """The first entry held: entries before it are in a snapshot."""
+        return self.pending.index + 1 if self.pending is not None else self.storage.first_index()
+
     def last_index(self) -> int:
         # offset is always one past the persisted prefix the log builds on: storage's end when
         # nothing is unstable, so this needs no storage call
@@ -36,7 +43,12 @@ class RaftLog:
             return self.unstable[pos].term if pos < len(self.unstable) else None
         if index > self.last_index():
             return None
-        return self.storage.term(index)
+        if self.pending is not None:
+            return self.pending.term if index == self.pending.index else None
+        try:
+            return self.storage.term(index)
+        except Compacted:
+            return None
 
     def last_term(self) -> int:
         return self.term(self.last_index()) or 0
@@ -49,6 +61,8 @@ class RaftLog:
         hi = min(hi, self.last_index() + 1)
         if lo >= hi:
             return []
+        if lo < self.first_index():
+            raise Compacted(f"entries from {lo} are compacted (the log starts at {self.first_index()})")
         out: list[Entry] = []
         if lo < self.offset:
             out += self.storage.entries(lo, min(hi, self.offset))
@@ -126,7 +140,22 @@ class RaftLog:
                 raise RaftSafetyError(f"commit {index} beyond last index {self.last_index()}")
             self.committed = index
 
+    def restore(self, snap: Snapshot) -> None:
+        """Install a leader's snapshot (the node checked that it is newer than our commit
+        index): the log is replaced by it, to be persisted with the next Ready."""
+        self._mark(self.committed + 1)  # what we held after our commit index is replaced
+        self.pending = snap
+        self.unstable = []
+        self.offset = snap.index + 1
+        self.committed = snap.index
+
     # -- persistence and application ------------------------------------------------------
+    def snapshot_applied(self, snap: Snapshot) -> None:
+        """The host persisted the pending snapshot and restored its state machine from it."""
+        if self.pending is not None and self.pending.index == snap.index:
+            self.pending = None
+        self.applied = max(self.applied, snap.index)
+
     def unstable_entries(self) -> tuple[Entry, ...]:
         return tuple(self.unstable)
 
@@ -140,7 +169,10 @@ class RaftLog:
         return self.offset - 1
 
     def next_committed(self) -> list[Entry]:
-        """Committed, persisted entries not yet applied."""
+        """Committed, persisted entries not yet applied (none while a snapshot is pending:
+        it comes first)."""
+        if self.pending is not None:
+            return []
         hi = min(self.committed, self.stable_last())
         return self.slice(self.applied + 1, hi + 1) if hi > self.applied else []
 

@@ -128,8 +128,20 @@ class ConfLog:
             if e.kind == EntryKind.CONF_CHANGE and e.index > self.last_index:
                 self.changes.append((e.index, e.term, self.current.apply(ConfChange.decode(e.data))))
 
-    def truncate(self, term_of) -> None:  # noqa: ANN001 (index -> term or None)
+    def truncate(self, term_of, first_index: int = 1) -> None:  # noqa: ANN001 (index -> term or None)
         """Forget configurations whose entry is no longer in the log (``term_of(index)``
-        differs from the term it was appended with)."""
-        while self.changes and term_of(self.changes[-1][0]) != self.changes[-1][1]:
+        differs from the term it was appended with). Entries before ``first_index`` are in a
+        snapshot: committed, so never undone."""
+        while (
+            self.changes
+            and self.changes[-1][0] >= first_index
+            and term_of(self.changes[-1][0]) != self.changes[-1][1]
+        ):
             self.changes.pop()
+
+    def at(self, index: int) -> ConfState:
+        """The configuration in effect at log index ``index`` (what a snapshot there holds)."""
+        for i, _term, conf in reversed(self.changes):
+            if i <= index:
+                return conf
+        return self.base

@@ -14,8 +14,16 @@ appends gets no heartbeats until it has heard nothing for ``flow_heartbeat_tick`
 Membership (`raft.membership`: learners, single-server changes taking effect on append),
 leader transfer (`transfer_leader`, MsgTimeoutNow) and linearizable reads (`read_index`, the
 thesis's section 6.4) live in the sections marked "membership", "transfer" and "reads". The
-configuration is ``conf_state``; it is rebuilt on restart from the configuration entries in
-storage, after the bootstrap one in `RaftConfig` (a snapshot would carry it instead).
+configuration is ``conf_state``; it is rebuilt on restart from the snapshot's configuration
+(or the bootstrap one in `RaftConfig`) and the configuration entries in storage after it.
+
+Snapshots (InstallSnapshot): the host snapshots its state machine and compacts the log
+(`Storage.create_snapshot`, with the configuration at the snapshot's index,
+`conf_state_at`); a follower that needs an entry the leader no longer holds gets the
+leader's stored snapshot in a MsgSnap, installs it if it is newer than its commit index
+(`Ready.snapshot`, persisted and restored by the host before any entry is applied; its
+configuration becomes the node's base configuration) and acknowledges its index with a
+MsgAppResp.
 """
 
 from __future__ import annotations
@@ -41,6 +49,7 @@ from swarmraft.raft.types import (
     ReadState,
     Ready,
     Role,
+    Snapshot,
     Status,
 )
 
@@ -71,9 +80,9 @@ class RaftNode:
         # the leader's entries of its term not yet committed: (index, payload bytes), in order
         self._uncommitted: deque[tuple[int, int]] = deque()
         self._uncommitted_bytes = 0
-        # membership: the bootstrap configuration, then every configuration entry in the log
-        boot = config.voters if config.voters is not None else config.members
-        self.confs = ConfLog(ConfState(tuple(sorted(boot)), tuple(sorted(config.learners))))
+        # membership: the snapshot's configuration (else the bootstrap one), then every
+        # configuration entry in the log after it
+        self.confs = self._base_confs(storage.snapshot())
         self.confs.add(storage.conf_entries())
         self._term_start = 0  # a leader's first index of its term (its no-op)
         # transfer: the node a leader hands over to, and ticks since it began
@@ -151,6 +160,7 @@ class RaftNode:
         return bool(
             self.msgs
             or log.unstable
+            or log.pending is not None
             or self.term != p.term
             or self.vote != p.vote
             or log.committed != p.commit
@@ -171,11 +181,14 @@ class RaftNode:
             read_states=tuple(r for r in self._read_states if r.index <= self.log.applied)
             if self._read_states
             else (),
+            snapshot=self.log.pending,
         )
 
     def advance(self, rd: Ready) -> None:
         if rd.hard_state is not None:
             self._persisted_hs = rd.hard_state
+        if rd.snapshot is not None:
+            self.log.snapshot_applied(rd.snapshot)
         if rd.entries:
             last = rd.entries[-1]
             self.log.stable_to(last.index, last.term)
@@ -207,7 +220,7 @@ class RaftNode:
                     return  # we heard from a live leader recently: ignore the disruption
             if m.type == MsgType.PRE_VOTE or (m.type == MsgType.PRE_VOTE_RESP and not m.reject):
                 pass  # pre-votes never change our term
-            elif m.type in (MsgType.APP, MsgType.HEARTBEAT):
+            elif m.type in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP):
                 self._become_follower(m.term, m.frm)
             else:
                 self._become_follower(m.term, None)
@@ -215,6 +228,7 @@ class RaftNode:
             if (self.config.check_quorum or self.config.pre_vote) and m.type in (
                 MsgType.APP,
                 MsgType.HEARTBEAT,
+                MsgType.SNAP,
             ):
                 # tell a stale leader about the newer term so it steps down
                 self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term))
@@ -401,6 +415,8 @@ class RaftNode:
         pr = self.prs[to]
         if not pr.can_send():
             return False
+        if pr.next < self.log.first_index():
+            return self._send_snapshot(to, pr)
         entries = self._entries_from(pr.next)
         if not entries and not send_if_empty:
             return False
@@ -423,6 +439,14 @@ class RaftNode:
         elif entries:
             pr.next = entries[-1].index + 1
             pr.inflights.add(pr.next - 1, sum(len(e.data) for e in entries))
+        return True
+
+    def _send_snapshot(self, to: int, pr: Progress) -> bool:
+        """The follower needs entries we compacted: send our stored snapshot instead."""
+        snap: Snapshot = self.log.storage.snapshot()
+        self._send(Message(MsgType.SNAP, self.id, to, self.term, snapshot=snap))
+        pr.become_snapshot(snap.index)
+        pr.silent, pr.flowing = 0, False
         return True
 
     def _maybe_commit(self, acked: int | None = None) -> bool:
@@ -457,6 +481,10 @@ class RaftNode:
                     self._send_append(m.frm)
                 return
             if pr.maybe_update(m.index) or (pr.probe and m.index == pr.match):
+                if pr.pending_snapshot:
+                    if pr.match + 1 < self.log.first_index():
+                        return  # still short of our log: wait for the snapshot's answer
+                    pr.pending_snapshot = 0
                 if pr.probe:
                     pr.become_replicate()
                 else:
@@ -474,6 +502,8 @@ class RaftNode:
             if m.index and self._pending_reads:
                 self._read_acked(m.frm, m.index)
             pr.paused = False
+            if pr.pending_snapshot:  # the snapshot or its answer may be lost: probe again
+                pr.become_probe()
             if not pr.probe and pr.inflights.full():
                 pr.inflights.free_first()
             # A follower that lacks entries after a heartbeat lost an append or its answer,
@@ -517,6 +547,9 @@ class RaftNode:
         elif m.type == MsgType.HEARTBEAT:
             self._become_follower(m.term, m.frm)
             self._handle_heartbeat(m)
+        elif m.type == MsgType.SNAP:
+            self._become_follower(m.term, m.frm)
+            self._handle_snapshot(m)
         elif (m.type == MsgType.VOTE_RESP and self.role == Role.CANDIDATE) or (
             m.type == MsgType.PRE_VOTE_RESP and self.role == Role.PRE_CANDIDATE
         ):
@@ -536,6 +569,10 @@ class RaftNode:
             self.election_elapsed = 0
             self.lead = m.frm
             self._handle_heartbeat(m)
+        elif m.type == MsgType.SNAP:
+            self.election_elapsed = 0
+            self.lead = m.frm
+            self._handle_snapshot(m)
 
     def _handle_append(self, m: Message) -> None:
         if m.index < self.log.committed:
@@ -574,7 +611,7 @@ class RaftNode:
         if last is not None and (
             self.confs.changes or any(e.kind == EntryKind.CONF_CHANGE for e in m.entries)
         ):
-            self.confs.truncate(self.log.term)
+            self.confs.truncate(self.log.term, self.log.first_index())
             self.confs.add(m.entries)
         return last
 
@@ -603,6 +640,20 @@ class RaftNode:
         self.log.commit_to(min(m.commit, self.log.last_index()))
         self._send(Message(MsgType.HEARTBEAT_RESP, self.id, m.frm, self.term, index=m.index))
 
+    def _handle_snapshot(self, m: Message) -> None:
+        """Install the leader's snapshot unless our log already holds what it covers; either
+        way acknowledge the index we now hold committed."""
+        snap = m.snapshot
+        assert snap is not None
+        if snap.index <= self.log.committed:
+            pass  # older than what we have committed: nothing to do
+        elif self.log.match_term(snap.index, snap.term):
+            self.log.commit_to(snap.index)  # we hold its last entry: our log covers it
+        else:
+            self.log.restore(snap)
+            self.confs = self._base_confs(snap)  # the log it replaced held the configurations
+        self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=self.log.committed))
+
     def _send(self, m: Message) -> None:
         self.msgs.append(m)
 
@@ -611,6 +662,19 @@ class RaftNode:
     def conf_state(self) -> ConfState:
         """The configuration in effect: the newest in the log, committed or not."""
         return self.confs.current
+
+    def conf_state_at(self, index: int) -> ConfState:
+        """The configuration in effect at ``index``: a snapshot taken there must carry it
+        (`Storage.create_snapshot`'s ``conf``)."""
+        return self.confs.at(index)
+
+    def _base_confs(self, snap: Snapshot) -> ConfLog:
+        """The configurations known without reading the log: the snapshot's (if it has one),
+        else the bootstrap one of `RaftConfig`."""
+        if snap.index and snap.voters:
+            return ConfLog(ConfState(tuple(snap.voters), tuple(snap.learners)), snap.index)
+        boot = self.config.voters if self.config.voters is not None else self.config.members
+        return ConfLog(ConfState(tuple(sorted(boot)), tuple(sorted(self.config.learners))))
 
     def progress(self, node: int) -> Progress | None:
         """The leader's view of a member (``match``: the highest index it is known to hold);

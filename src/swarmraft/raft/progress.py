@@ -2,7 +2,10 @@
 (`Inflights`), after etcd-io/raft's tracker package.
 
 A follower is probed (``probe``: one append at a time, ``paused`` until it is answered) until
-it acknowledges an index; then appends are pipelined (replicate state) up to a window of
+it acknowledges an index; a follower that needs entries the leader has compacted gets the
+leader's snapshot instead (``pending_snapshot``: nothing more is sent until it acknowledges
+that index, or answers a heartbeat, when it is probed again); then appends are pipelined
+(replicate state) up to a window of
 ``max_inflight_msgs`` messages and ``max_inflight_bytes`` bytes not yet acknowledged. A
 rejection sends it back to probing. Rejections and acknowledgements that answer an append the
 leader has moved past are stale and change nothing.
@@ -67,18 +70,26 @@ class Progress:
     responsive: bool = True
     silent: int = 0
     flowing: bool = False
+    pending_snapshot: int = 0  # the index of the snapshot sent, while it is unacknowledged
 
     def become_probe(self) -> None:
-        self.probe, self.paused = True, False
+        self.probe, self.paused, self.pending_snapshot = True, False, 0
         self.next = self.match + 1
         self.inflights.reset()
 
     def become_replicate(self) -> None:
-        self.probe, self.paused = False, False
+        self.probe, self.paused, self.pending_snapshot = False, False, 0
         self.next = self.match + 1
         self.inflights.reset()
 
+    def become_snapshot(self, index: int) -> None:
+        self.probe, self.paused, self.pending_snapshot = True, True, index
+        self.next = index + 1
+        self.inflights.reset()
+
     def can_send(self) -> bool:
+        if self.pending_snapshot:
+            return False
         return not self.paused if self.probe else not self.inflights.full()
 
     def maybe_update(self, index: int) -> bool:

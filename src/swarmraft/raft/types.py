@@ -29,6 +29,21 @@ class HardState(NamedTuple):
     commit: int = 0
 
 
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """The state machine at log index ``index`` (of term ``term``): ``data`` is the host's
+    encoding of it (the core never reads it). Index 0 is "no snapshot".
+
+    # membership: the configuration in force at ``index`` goes here once membership changes
+    # exist: ``voters`` and ``learners`` (empty: the static `RaftConfig` peers)."""
+
+    index: int = 0
+    term: int = 0
+    data: bytes = b""
+    voters: tuple[int, ...] = ()
+    learners: tuple[int, ...] = ()
+
+
 class MsgType(StrEnum):
     PROP = "MsgProp"  # a proposal forwarded to the leader
     APP = "MsgApp"
@@ -42,6 +57,8 @@ class MsgType(StrEnum):
     TIMEOUT_NOW = "MsgTimeoutNow"  # leader transfer: campaign now (a forced election)
     READ_INDEX = "MsgReadIndex"  # a follower asks the leader for a read index
     READ_INDEX_RESP = "MsgReadIndexResp"
+    # InstallSnapshot: the leader's snapshot for a follower behind its log (answer: MsgAppResp)
+    SNAP = "MsgSnap"
 
 
 @dataclass(slots=True)
@@ -73,6 +90,7 @@ class Message:
     reject: bool = False
     reject_hint: int = 0
     force: bool = False
+    snapshot: Snapshot | None = None  # MsgSnap only
 
 
 class Role(StrEnum):
@@ -92,20 +110,30 @@ class ReadState(NamedTuple):
 
 @dataclass(slots=True)
 class Ready:
-    """Work for the host, in this order: persist ``hard_state`` (if not None) and
-    ``entries`` (they replace any stored entries from their first index on), then send
-    ``messages``, then apply ``committed``, then call ``advance(ready)``. Messages may depend on
-    the state in the same Ready, so they must not leave before it is persisted.
-    ``read_states``: reads answered (`ReadState`); the node has already applied their index."""
+    """Work for the host, in this order: persist ``snapshot`` (if not None: a leader's
+    snapshot this follower installs; it replaces the whole stored log), ``hard_state`` (if
+    not None) and ``entries`` (they replace any stored entries from their first index on),
+    then send ``messages``, then restore the state machine from ``snapshot`` and apply
+    ``committed``, then call ``advance(ready)``. Messages may depend on the state in the same
+    Ready, so they must not leave before it is persisted. ``read_states``: reads answered
+    (`ReadState`); the node has already applied their index."""
 
     hard_state: HardState | None
     entries: tuple[Entry, ...]
     committed: tuple[Entry, ...]
     messages: tuple[Message, ...]
     read_states: tuple[ReadState, ...] = ()
+    snapshot: Snapshot | None = None
 
     def __bool__(self) -> bool:
-        return bool(self.hard_state or self.entries or self.committed or self.messages or self.read_states)
+        return bool(
+            self.snapshot
+            or self.hard_state
+            or self.entries
+            or self.committed
+            or self.messages
+            or self.read_states
+        )
 
 
 @dataclass(frozen=True)

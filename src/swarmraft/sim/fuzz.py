@@ -1,12 +1,13 @@
 """Randomised fault runs that try to break Raft: crashes (some mid-Ready, some restarted at
 once), partitions, one-way cuts, loss, duplication and deep reordering, on 3-7 nodes with
 PreVote and CheckQuorum drawn per seed, appends of 1-4 entries and, in some seeds, logs of
-thousands of entries. In a fraction of the seeds (``FuzzConfig.membership``) membership moves
-too: nodes join as learners, learners are promoted, voters (the leader too) and learners are
-removed, leadership is transferred, and linearizable reads are asked at any node. Every safety
-invariant is checked after every event; once the faults stop, liveness (a leader within two
-election timeouts, then no term change) and convergence (every committed entry on every
-member) are checked.
+thousands of entries, and snapshots with log compaction every few entries (so crashed and
+lagging followers catch up by InstallSnapshot). In a fraction of the seeds
+(``FuzzConfig.membership``) membership moves too: nodes join as learners, learners are
+promoted, voters (the leader too) and learners are removed, leadership is transferred, and
+linearizable reads are asked at any node. Every safety invariant is checked after every event;
+once the faults stop, liveness (a leader within two election timeouts, then no term change) and
+convergence (every committed entry on every member) are checked.
 
 A run is fully determined by its seed: a failing seed replays exactly
 (``swarmraft raft-fuzz --seed-start S --seeds 1``).
@@ -18,7 +19,14 @@ import random
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from swarmraft.raft import ConfChange, ConfChangeRefused, ConfChangeType, NotLeader, RaftSafetyError
+from swarmraft.raft import (
+    ConfChange,
+    ConfChangeRefused,
+    ConfChangeType,
+    NotLeader,
+    RaftSafetyError,
+    SnapshotPolicy,
+)
 from swarmraft.sim.invariants import InvariantViolation
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -67,6 +75,9 @@ class FuzzConfig:
     pre_vote: bool | None = None
     check_quorum: bool | None = None
     heavy: float = 0.1
+    # the fraction of seeds whose nodes snapshot and compact: every 2-20 entries (50-500 in
+    # heavy seeds), keeping up to a quarter of that many entries below the snapshot
+    snapshots: float = 0.8
     p_batch: float = 0.15  # a heavy seed's batch of 100-500 entries, until it has proposed 1000-3000
     p_crash: float = 0.05
     p_bounce: float = 0.04  # crash and restart at the same instant
@@ -106,6 +117,8 @@ class FuzzResult:
     last_index: int = 0  # the longest log at the end
     conf_changes: int = 0  # configuration changes a leader accepted
     reads: int = 0  # linearizable reads answered
+    snapshot_every: int = 0  # 0: no snapshots in this seed
+    snapshots_installed: int = 0  # by followers, from a leader
 
     @property
     def ok(self) -> bool:
@@ -130,6 +143,10 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
     inflight = rng.choice((1, 2, 8)) if rng.random() < 0.5 else 256
     pre_vote = cfg.pre_vote if cfg.pre_vote is not None else rng.random() < 0.5
     check_quorum = cfg.check_quorum if cfg.check_quorum is not None else rng.random() < 0.5
+    # drawn from their own generator so that the seeds' other draws stay as they were
+    srng = random.Random(seed * 104_729 + 3)
+    every = (srng.randint(50, 500) if heavy else srng.randint(2, 20)) if srng.random() < cfg.snapshots else 0
+    policy = SnapshotPolicy(every, srng.randint(0, every // 4)) if every else None
     link = LinkModel(
         loss=loss,
         duplicate=rng.uniform(0.0, 0.1),
@@ -151,12 +168,13 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
             "max_inflight_msgs": inflight,
         },
         without=cfg.without,
+        snapshots=policy,
         on_apply=lambda _i, e: committed.add(e.data) if e.data else None,
     )
     stats = {"proposals": 0, "crashes": 0, "partitions": 0, "conf_changes": 0}
 
     def result(ok: bool, error: str | None = None, invariant: str | None = None) -> FuzzResult:
-        last = max(len(c.log(i)) for i in c.ids)
+        last = max(c.last_index(i) for i in c.ids)
         return FuzzResult(
             seed,
             c.loop.events,
@@ -174,6 +192,8 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
             last,
             stats["conf_changes"],
             len(c.read_states),
+            every,
+            c.snapshots_installed,
         )
 
     try:

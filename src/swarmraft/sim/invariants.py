@@ -4,13 +4,15 @@ the whole run, is checked by `sim.fuzz`).
 Logs are compared through chain hashes: h[i] = hash(h[i-1], term_i, kind_i, data_i), so two
 logs agree on every entry up to i exactly when their h[i] agree. Each event changes one node,
 and only the part of its log written since the last check (`RaftLog.take_dirty`) is hashed.
+A log that starts after a compaction point (a snapshot) takes the committed chain up to it:
+what a snapshot covers must be committed, with the committed entry's term at its index.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from swarmraft.raft import Entry, HardState, Message, MsgType, RaftNode, Role, Storage
+from swarmraft.raft import Entry, HardState, Message, MsgType, RaftNode, Role, Snapshot, Storage
 
 #: The invariants by name (``InvariantViolation.invariant``; ``raft-fuzz --without NAME``).
 INVARIANTS = (
@@ -30,6 +32,8 @@ INVARIANTS = (
     "transfer-caught-up",  # MsgTimeoutNow goes only to a node holding the leader's whole log
     "conf-change-rule",  # a leader appends a configuration change only with the previous one
     # committed and an entry of its own term committed (single-server changes, thesis 4.1)
+    "state-machine-safety",  # every node applies the same entry at each index, each index once, in order
+    "snapshot-committed",  # a snapshot or a compacted log covers only committed entries, with their terms
 )
 
 
@@ -67,7 +71,8 @@ class InvariantChecker:
     # the lowest term of a node seen holding each index committed: the term it was committed in
     # (its leader learns first); a leader of term L must hold those committed before L
     committed_term: list[int] = field(default_factory=lambda: [0])
-    applied: dict[int, Entry] = field(default_factory=dict)
+    applied: dict[int, int] = field(default_factory=dict)  # index -> hash of the entry applied there
+    node_applied: dict[int, int] = field(default_factory=dict)  # node -> its state machine's index
     hard: dict[int, HardState] = field(default_factory=dict)  # last persisted hard state seen
     nodes: dict[int, _NodeTrack] = field(default_factory=dict)
     checks: int = 0
@@ -78,8 +83,10 @@ class InvariantChecker:
             raise InvariantViolation(f"seed {self.seed}, t = {now:.1f} ms: {invariant}: {what}", invariant)
 
     def restarted(self, node_id: int) -> None:
-        """Forget a node's volatile tracking; its log is rehashed from index 1 next check."""
+        """Forget a node's volatile tracking; its log is rehashed from index 1 next check, and
+        its state machine starts empty (until a snapshot is restored)."""
         self.nodes.pop(node_id, None)
+        self.node_applied[node_id] = 0
 
     def check(self, now: float, node: RaftNode, hard: HardState) -> None:
         """Check node's state after an event; ``hard`` is what its storage holds."""
@@ -106,9 +113,10 @@ class InvariantChecker:
 
         # Log matching: entries with the same index and term have identical prefixes.
         if dirty is not None:
+            first = node.log.first_index()
             # Only the leader of a term writes entries of that term and it never takes one back,
-            # so no node drops an entry of its current term.
-            for i in range(dirty, len(track.terms) if not fresh else 0):
+            # so no node drops an entry of its current term (a snapshot holds what it covers).
+            for i in range(max(dirty, first - 1), len(track.terms) if not fresh else 0):
                 if track.terms[i] == node.term and (i > last or node.log.term(i) != node.term):
                     self.fail(
                         now,
@@ -119,8 +127,10 @@ class InvariantChecker:
             del track.chain[dirty:]
             del track.terms[dirty:]
             start = len(track.chain)
-            _chain_extend(track, node.log.slice(start, last + 1))
-            for i in range(start, last + 1):
+            if start < first:
+                self._compacted_prefix(now, nid, node, track, start, first - 1)
+            _chain_extend(track, node.log.slice(max(start, first), last + 1))
+            for i in range(max(start, first), last + 1):
                 key = (i, node.log.term(i) or 0)
                 seen = self.by_index_term.setdefault(key, track.chain[i])
                 if seen != track.chain[i]:
@@ -231,6 +241,63 @@ class InvariantChecker:
                     f"committing an entry of its term (commit {commit}, of term {node.log.term(commit)})",
                 )
 
+    def _compacted_prefix(
+        self, now: float, nid: int, node: RaftNode, track: _NodeTrack, start: int, base: int
+    ) -> None:
+        """Entries start..base of node's log are in its snapshot: they take the committed
+        chain, after checking that base is committed and its term is the committed entry's."""
+        known = len(self.committed) - 1
+        if base > known:
+            self.fail(
+                now,
+                "snapshot-committed",
+                f"node {nid}'s log starts after index {base}, beyond the highest committed index {known}",
+            )
+        term = node.log.term(base) or 0
+        if base <= known and self.by_index_term.get((base, term)) != self.committed[base]:
+            self.fail(
+                now,
+                "snapshot-committed",
+                f"node {nid}'s snapshot at index {base} has term {term}, not the committed entry's",
+            )
+        for i in range(start, base + 1):
+            track.chain.append(self.committed[i] if i <= known else 0)
+            track.terms.append(term if i == base else -1)
+
+    def snapshot_restored(
+        self, now: float, node_id: int, snap: Snapshot, entries: list[Entry] | None
+    ) -> None:
+        """Node ``node_id``'s state machine was restored from ``snap``: it jumps to its index
+        (never back); with ``entries`` (a state machine that is the applied log), each must be
+        the entry applied at its index."""
+        before = self.node_applied.get(node_id, 0)
+        if snap.index < before:
+            self.fail(
+                now,
+                "state-machine-safety",
+                f"node {node_id} restored a snapshot at {snap.index} over a state machine at {before}",
+            )
+        if entries is not None:
+            if [e.index for e in entries] != list(range(1, len(entries) + 1)) or len(entries) != snap.index:
+                self.fail(
+                    now,
+                    "state-machine-safety",
+                    f"node {node_id}'s snapshot at {snap.index} holds {len(entries)} entries, "
+                    f"not 1..{snap.index}",
+                )
+            for e in entries:
+                self._same_as_applied(now, node_id, e)
+        self.node_applied[node_id] = snap.index
+
+    def _same_as_applied(self, now: float, node_id: int, entry: Entry) -> None:
+        h = hash((entry.term, entry.kind, entry.data))
+        if self.applied.setdefault(entry.index, h) != h:
+            self.fail(
+                now,
+                "state-machine-safety",
+                f"node {node_id} applied {entry} at index {entry.index}, another node applied another entry",
+            )
+
     def sending(self, now: float, m: Message, storage: Storage) -> None:
         """Durable before sent: a granted vote is on disk (that term, that candidate) before the
         answer leaves, and so is every entry an append answer acknowledges."""
@@ -286,11 +353,14 @@ class InvariantChecker:
             )
 
     def applied_entry(self, now: float, node_id: int, entry: Entry) -> None:
-        """State-machine safety: no two nodes apply different entries at one index."""
-        seen = self.applied.setdefault(entry.index, entry)
-        if seen != entry:
+        """State-machine safety: no two nodes apply different entries at one index, and each
+        node applies every index once, in order, after its snapshot's."""
+        at = self.node_applied.get(node_id, 0)
+        if entry.index != at + 1:
             self.fail(
                 now,
                 "state-machine-safety",
-                f"node {node_id} applied {entry} at index {entry.index}, another applied {seen}",
+                f"node {node_id} applied entry {entry.index} after its state machine reached {at}",
             )
+        self.node_applied[node_id] = entry.index
+        self._same_as_applied(now, node_id, entry)

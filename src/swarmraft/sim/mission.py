@@ -12,7 +12,7 @@ import numpy as np
 
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.committee import initial_committee, next_change
-from swarmraft.raft import Entry, EntryKind
+from swarmraft.raft import Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -102,6 +102,12 @@ def ins_aligned_in_outages(log: MissionLog, drift: InsDrift) -> None:
             log.ins_aligned[a:b, i] = log.truth[a:b, i] + own.error(log.t[a:b] - log.t[a])
 
 
+#: When a mission's drones snapshot their replicated state and compact their Raft logs: every
+#: 1000 applied entries (100 s at 10 Hz: a log never holds more than 1500 entries, about 0.6 MB
+#: for 9 drones), keeping 500 below the snapshot (50 s: a drone down for less catches up with
+#: appends, as it always did; one down longer gets the leader's snapshot).
+MISSION_SNAPSHOTS = SnapshotPolicy(every=1000, keep=500)
+
 #: ``on_step(log, k)``: called once step k's interval has passed (its deadline too), with a
 #: live copy of the mission log (see `Mission`); it must only read.
 StepHook = Callable[[MissionLog, int], None]
@@ -113,9 +119,22 @@ class Mission:
     messages, events) and holds its own copy of the record arrays (verified positions, flags,
     levels, status, latency), filled when a record is first applied, so the hook sees records
     as they commit. The results are those of a run without the hook (the hook's log is never
-    read back)."""
+    read back).
 
-    def __init__(self, sc: Scenario, on_step: StepHook | None = None) -> None:
+    ``snapshots``: when drones snapshot and compact their logs (`MISSION_SNAPSHOTS`; None:
+    never); ``check_invariants``: the Raft invariant checker, on by default (it keeps a hash
+    of every entry: long runs that measure memory turn it off); ``storage(i)``: drone i's Raft
+    storage (in memory when None)."""
+
+    def __init__(
+        self,
+        sc: Scenario,
+        on_step: StepHook | None = None,
+        *,
+        snapshots: SnapshotPolicy | None = MISSION_SNAPSHOTS,
+        check_invariants: bool = True,
+        storage: Callable[[int], Storage] | None = None,
+    ) -> None:
         self.sc = sc
         self.on_step = on_step
         n = sc.drones
@@ -142,6 +161,11 @@ class Mission:
             network=link,
             on_apply=self._on_apply,
             raft_options={"voters": conf.voters, "learners": conf.learners} if conf else None,
+            check_invariants=check_invariants,
+            snapshots=snapshots,
+            app_snapshot=lambda node: self.drones[node - 1].snapshot(),
+            app_restore=lambda node, snap: self.drones[node - 1].restore(snap.data),
+            storage=storage,
         )
         # the committee's leader: when it last heard from each drone (ms), and since when it leads
         self._heard: dict[int, float] = {}
@@ -159,8 +183,6 @@ class Mission:
         self.log = world_log(w)
         self.live = _live_copy(self.log) if on_step is not None else None
         self.sent_to: dict[int, int | None] = {}
-        self._first_apply: dict[int, float] = {}
-        self._records: dict[int, StepRecord] = {}  # step -> its record, as first applied
 
     # -- sensing and reporting --------------------------------------------------------------
     def _ins(self, k: int) -> np.ndarray:
@@ -289,10 +311,13 @@ class Mission:
             return
         self.log.node_records.setdefault(node, []).append((rec.step, rec.digest))
         now = self.cluster.now
-        if self.live is not None and rec.step not in self._first_apply and rec.step < len(self.live.t):
-            _note_record(self.live, rec, now - rec.step * self.sc.dt_s * 1000)
-        self._first_apply.setdefault(rec.step, now)
-        self._records.setdefault(rec.step, rec)  # every node applies the same (tests check digests)
+        # A step's record goes into the log when it is first applied (every node applies the
+        # same: tests check digests), with its latency; nothing per step is kept besides.
+        if rec.step < len(self.log.t) and not self.log.committed[rec.step]:
+            latency = now - rec.step * self.sc.dt_s * 1000
+            _note_record(self.log, rec, latency)
+            if self.live is not None:
+                _note_record(self.live, rec, latency)
         # The drone takes its verified position: its INS is aligned to it (for a flagged drone
         # this is the reset to its recovered position). Not when replaying old records after a
         # restart.
@@ -391,13 +416,12 @@ class Mission:
 
     def _step_with_history(self, k: int) -> None:
         self._rows = {s: r for s, r in self._rows.items() if s >= k - 2}
+        # a step's retry needs its ranges row: acknowledgements of older steps are not read
+        self._acked = {a for a in self._acked if a[1] >= k - 2}
         self._step(k)
 
     def _finish(self) -> MissionLog:
         log = self.log
-        for k, rec in self._records.items():
-            if k < len(log.t):
-                _note_record(log, rec, self._first_apply.get(k, np.nan) - k * self.sc.dt_s * 1000)
         log.status = log.status.astype(str)
         ins_aligned_in_outages(log, self.drift)
         log.detector_params = dict(self.pcfg.detector_params)

@@ -7,6 +7,12 @@ synchronise elections), messages cross the `Network` model, a crash drops the no
 (its storage, the "disk", survives) and a restart rebuilds the node from storage. After
 every event the `InvariantChecker` verifies Raft's safety properties.
 
+Snapshots: with a `SnapshotPolicy` each node snapshots its state machine every ``every``
+applied entries and compacts its log (keeping ``keep`` entries); a restarted node restores
+the snapshot and applies the tail only. The state machine is the list of applied entries
+(`applied`) unless the host brings its own (``app_snapshot`` and ``app_restore``: then the
+Cluster keeps no applied entries, so a long run stays bounded).
+
 Example::
 
     from swarmraft.sim import Cluster
@@ -40,7 +46,12 @@ from swarmraft.raft import (
     RaftConfig,
     RaftNode,
     Ready,
+    Snapshot,
+    SnapshotPolicy,
     Status,
+    Storage,
+    pack_entries,
+    unpack_entries,
 )
 from swarmraft.sim.invariants import InvariantChecker
 from swarmraft.sim.network import LinkModel, Network
@@ -85,7 +96,10 @@ class Cluster:
     election timeouts and 50 ms heartbeats (the Raft paper; docs/protocol.md); the default network
     has 1-3 ms one-way delay and no loss. ``raft_options`` sets further `RaftConfig` fields on
     every node (flow control limits, ``max_entries_per_msg``); ``without`` names invariants not
-    checked.
+    checked. ``snapshots``: when nodes snapshot and compact (None: never); ``app_snapshot(i)``
+    and ``app_restore(i, snapshot)``: the host's state machine of node i (its encoding at the
+    node's applied index, and its restoration); ``storage``: node i's storage (a
+    `MemoryStorage` when None).
     """
 
     def __init__(
@@ -102,6 +116,10 @@ class Cluster:
         on_apply: Callable[[int, Entry], None] | None = None,
         raft_options: Mapping[str, Any] | None = None,
         without: frozenset[str] = frozenset(),
+        snapshots: SnapshotPolicy | None = None,
+        app_snapshot: Callable[[int], bytes] | None = None,
+        app_restore: Callable[[int, Snapshot], None] | None = None,
+        storage: Callable[[int], Storage] | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("Cluster: n must be >= 1")
@@ -125,7 +143,13 @@ class Cluster:
         self._boot = self.ids  # the bootstrap voters
         self._reads: dict[int, tuple[float, int]] = {}  # ctx -> (asked at, highest commit then)
         self.read_states: dict[int, tuple[int, int, float]] = {}  # ctx -> (node, index, answered at)
-        self.storage = {i: MemoryStorage() for i in self.ids}
+        if (app_snapshot is None) != (app_restore is None):
+            raise ValueError("Cluster: give both app_snapshot and app_restore, or neither")
+        self.snapshots = snapshots or SnapshotPolicy()
+        self.app_snapshot, self.app_restore = app_snapshot, app_restore
+        self.snapshots_taken = 0
+        self.snapshots_installed = 0  # by followers, from a leader's MsgSnap
+        self.storage: dict[int, Storage] = {i: storage(i) if storage else MemoryStorage() for i in self.ids}
         self.nodes: dict[int, RaftNode | None] = {}
         self._incarnation = dict.fromkeys(self.ids, 0)
         self._applied: dict[int, list[Entry]] = {i: [] for i in self.ids}
@@ -146,10 +170,33 @@ class Cluster:
         self._incarnation[i] += 1
         node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + self._incarnation[i])
         self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng)
-        self._applied[i] = []  # the state machine is volatile: it is rebuilt by re-applying
+        self._applied[i] = []  # the state machine is volatile: restored from the snapshot, then re-applied
         if self.checker:
             self.checker.restarted(i)
+        snap = self.storage[i].snapshot()
+        if snap.index:
+            self._restore(i, snap)
         self._process(i)
+
+    def _restore(self, i: int, snap: Snapshot) -> None:
+        """Node i's state machine from a snapshot (its own on restart, or a leader's)."""
+        if self.app_restore is not None:
+            self.app_restore(i, snap)
+            entries = None
+        else:
+            entries = self._applied[i] = unpack_entries(snap.data)
+        if self.checker:
+            self.checker.snapshot_restored(self.loop.now, i, snap, entries)
+
+    def _maybe_snapshot(self, i: int, node: RaftNode) -> None:
+        st = self.storage[i]
+        plan = self.snapshots.plan(node.log.applied, st.snapshot().index, st.first_index())
+        if plan is None:
+            return
+        index, compact_to = plan
+        data = self.app_snapshot(i) if self.app_snapshot is not None else pack_entries(self._applied[i])
+        st.create_snapshot(index, data, compact_to, node.conf_state_at(index))
+        self.snapshots_taken += 1
 
     def _tick_all(self) -> None:
         """One clock tick for every live node, in id order (one event, not n)."""
@@ -181,7 +228,7 @@ class Cluster:
             rd = node._ready()
             if rd.hard_state is not None or rd.entries or rd.committed:
                 changed = True
-                self.storage[i].save(rd.hard_state, rd.entries)
+                self.storage[i].save(rd.hard_state, rd.entries, rd.snapshot)
             if self._armed and self._crash_point(i, rd, "persisted"):
                 return
             for m in rd.messages:
@@ -194,8 +241,13 @@ class Cluster:
                     self.loop.after(d, self._deliver, m)
             if self._armed and self._crash_point(i, rd, "sent"):
                 return
+            if rd.snapshot is not None:
+                self.snapshots_installed += 1
+                self._restore(i, rd.snapshot)
+            keep = self.app_snapshot is None
             for e in rd.committed:
-                self._applied[i].append(e)
+                if keep:
+                    self._applied[i].append(e)
                 if self.checker:
                     self.checker.applied_entry(self.loop.now, i, e)
                 if self.on_apply:
@@ -203,6 +255,8 @@ class Cluster:
             for rs in rd.read_states:
                 self._read_answered(i, node, rs.index, rs.ctx)
             node.advance(rd)
+            if rd.committed and self.snapshots.every:
+                self._maybe_snapshot(i, node)
         # Without state in a Ready nothing persistent changed (at most a leader stepped
         # down, or messages went out), so there is nothing new for the invariants to see.
         if self.checker and (changed or i not in self.checker.nodes):
@@ -497,17 +551,27 @@ class Cluster:
         return node.status
 
     def log(self, i: int) -> list[Entry]:
-        """Node i's log (persisted and unstable), entry 1 first."""
+        """Node i's log (persisted and unstable), from its first entry held (1 unless it was
+        compacted)."""
         self._check_id(i)
         node = self.nodes.get(i)
         if node is None:
-            last = self.storage[i].last_index()
-            return self.storage[i].entries(1, last + 1)
-        return node.log.slice(1, node.log.last_index() + 1)
+            st = self.storage[i]
+            return st.entries(st.first_index(), st.last_index() + 1)
+        return node.log.slice(node.log.first_index(), node.log.last_index() + 1)
+
+    def last_index(self, i: int) -> int:
+        """Node i's last log index (its storage's, if it is down)."""
+        self._check_id(i)
+        node = self.nodes.get(i)
+        return node.log.last_index() if node is not None else self.storage[i].last_index()
 
     def applied(self, i: int) -> list[bytes]:
-        """Payloads node i applied, in order, without the leaders' no-op entries."""
+        """Payloads node i applied, in order, without the leaders' no-op entries (its
+        snapshot's included). Not kept when the host brings its own state machine."""
         self._check_id(i)
+        if self.app_snapshot is not None:
+            raise ValueError("Cluster.applied: the host's state machine holds what was applied")
         return [e.data for e in self._applied[i] if e.kind != EntryKind.NOOP]
 
     @property

@@ -1,0 +1,162 @@
+"""Endurance: a long 9-drone mission at 10 Hz keeps memory and Raft storage bounded (issue 12,
+item 4: snapshots and log compaction).
+
+The mission: 9 drones, the `paper` detector (the scenario default, `joint`, costs 0.3-0.5 s
+of wall time per simulated second on its own: 10 hours would take more than a day), 5 %
+loss, drone 4 crashed at 30 % of the flight and restarted at 40 % (down long enough to need
+the leader's snapshot), each drone's Raft log in its own SQLite file (synchronous=OFF: the
+benchmark measures sizes, not fsyncs), the invariant checker off (it keeps a hash of every
+entry: a test harness, not part of a drone). Sampled every ``--sample-h`` hours and at the
+end: the process's peak and current RSS, the SQLite files' total size, the Raft entries held
+by all drones, and what the mission log itself keeps per step (``node_records``: one (step,
+digest) per drone per step, for the summary's identical-records check).
+
+Target: peak RSS and SQLite size at the end within 10 % of their value at 1 hour. The world
+(trajectories, GNSS, ranges) and the mission log's per-step arrays are allocated for the
+whole flight before it starts: they are in the 1-hour figure already; the table shows their
+size (``preallocated``) so growth can be told apart.
+
+Run: .venv/bin/python benchmarks/bench_endurance.py [--hours 10] [--sample-h 1]
+     .venv/bin/python benchmarks/bench_endurance.py --short   (0.3 h, sampled every 0.1 h)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from swarmraft.raft import SQLiteStorage
+from swarmraft.sim.mission import Mission
+from swarmraft.sim.scenario import Scenario
+
+TARGET = 0.10
+
+
+def _status_kb(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise RuntimeError(f"no {field} in /proc/self/status")
+
+
+def _dir_bytes(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+
+
+def scenario(hours: float) -> Scenario:
+    dur = hours * 3600
+    return Scenario(
+        name="endurance",
+        drones=9,
+        duration_s=dur,
+        seed=3,
+        network={"loss": 0.05},
+        protocol={"detector": "paper"},
+        fault=[
+            {"kind": "crash", "drone": 4, "at_s": round(0.3 * dur, 1)},
+            {"kind": "restart", "drone": 4, "at_s": round(0.4 * dur, 1)},
+        ],
+    )
+
+
+def sample(m: Mission, folder: Path, k: int, t0: float) -> dict[str, float]:
+    c = m.cluster
+    held = sum(st.last_index() - st.first_index() + 1 for st in c.storage.values())
+    records = sum(len(r) for r in m.log.node_records.values())
+    return {
+        "sim_h": round(k * m.sc.dt_s / 3600, 3),
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "peak_rss_mb": round(_status_kb("VmHWM") / 1024, 1),
+        "rss_mb": round(_status_kb("VmRSS") / 1024, 1),
+        "sqlite_mb": round(_dir_bytes(folder) / 2**20, 3),
+        "raft_entries_held": held,
+        "last_index": max(n.log.last_index() for n in c.nodes.values() if n is not None),
+        "snapshots_taken": c.snapshots_taken,
+        "snapshots_installed": c.snapshots_installed,
+        "mission_node_records": records,
+        "mission_node_records_mb": round(node_records_bytes(m) / 2**20, 1),
+    }
+
+
+def node_records_bytes(m: Mission) -> int:
+    """Bytes the mission log's ``node_records`` lists hold (lists, tuples, steps, digests)."""
+    total = 0
+    for recs in m.log.node_records.values():
+        total += sys.getsizeof(recs)
+        for rec in recs:
+            total += sys.getsizeof(rec) + sys.getsizeof(rec[0]) + sys.getsizeof(rec[1])
+    return total
+
+
+def preallocated_mb(m: Mission) -> float:
+    arrays = [v for v in vars(m.world).values() if isinstance(v, np.ndarray)]
+    arrays += [v for v in vars(m.log).values() if isinstance(v, np.ndarray)]
+    arrays += [m.traj.positions, m.traj.t]
+    return round(sum(a.nbytes for a in arrays) / 2**20, 1)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--hours", type=float, default=10.0, help="simulated hours (default 10)")
+    ap.add_argument("--sample-h", type=float, default=1.0, help="sample every this many hours (default 1)")
+    ap.add_argument("--short", action="store_true", help="0.3 h sampled every 0.1 h")
+    ap.add_argument("--json", type=Path, help="also write the samples to this file")
+    a = ap.parse_args()
+    hours, every_h = (0.3, 0.1) if a.short else (a.hours, a.sample_h)
+    if hours <= 0 or every_h <= 0:
+        sys.exit("bench_endurance: --hours and --sample-h must be > 0")
+    with tempfile.TemporaryDirectory(prefix="swarmraft-endurance-") as tmp:
+        folder = Path(tmp)
+        t0 = time.perf_counter()
+        m = Mission(
+            scenario(hours),
+            check_invariants=False,
+            storage=lambda i: SQLiteStorage(folder / f"drone-{i}.db", synchronous="OFF"),
+        )
+        print(
+            f"built the {hours:g} h world in {time.perf_counter() - t0:.0f} s; "
+            f"preallocated arrays (world and mission log): {preallocated_mb(m)} MB",
+            flush=True,
+        )
+        per = round(every_h * 3600 / m.sc.dt_s)
+        samples: list[dict[str, float]] = []
+        k = 0
+
+        def progress(_n: int) -> None:
+            nonlocal k
+            k += 1
+            if k % per == 0:
+                samples.append(sample(m, folder, k, t0))
+                print(json.dumps(samples[-1]), flush=True)
+
+        m.run(progress)
+        samples.append(sample(m, folder, k, t0))
+        print(json.dumps(samples[-1]), flush=True)
+        if a.json:
+            a.json.write_text(json.dumps({"hours": hours, "samples": samples}, indent=2) + "\n")
+    first = next((s for s in samples if s["sim_h"] >= min(1.0, every_h) - 1e-9), samples[0])
+    last = samples[-1]
+    for key in ("peak_rss_mb", "sqlite_mb"):
+        ratio = last[key] / first[key] - 1
+        verdict = "within" if ratio <= TARGET else "OVER"
+        print(
+            f"{key}: {first[key]} at {first['sim_h']} h, {last[key]} at {last['sim_h']} h: "
+            f"{ratio:+.1%} ({verdict} the {TARGET:.0%} target)"
+        )
+    grown = last["rss_mb"] - first["rss_mb"]
+    log_grown = last["mission_node_records_mb"] - first["mission_node_records_mb"]
+    print(
+        f"RSS grew {grown:.1f} MB from {first['sim_h']} h to {last['sim_h']} h, of which the mission "
+        f"log's node_records {log_grown:.1f} MB; peak RSS without that growth: "
+        f"{(last['peak_rss_mb'] - log_grown) / first['peak_rss_mb'] - 1:+.1%}"
+    )
+
+
+if __name__ == "__main__":
+    main()

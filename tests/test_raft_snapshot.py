@@ -16,7 +16,10 @@ from swarmraft.protocol.drone import Applied
 from swarmraft.protocol.records import StepRecord
 from swarmraft.raft import (
     Compacted,
+    ConfChange,
+    ConfChangeType,
     Entry,
+    EntryKind,
     HardState,
     MemoryStorage,
     Message,
@@ -219,3 +222,42 @@ def test_drone_state_encodes_deterministically_and_round_trips():
         Applied.decode(b"XXXX" + data[4:])
     with pytest.raises(ValueError, match="drone state"):
         Applied.decode(data[:-1])
+
+
+def test_a_snapshot_carries_the_configuration_to_a_new_member_and_across_a_restart():
+    """A node that joins after the change that added it was compacted away learns the
+    configuration from the snapshot alone; a node restarted after compaction rebuilds it from
+    its own snapshot (not the bootstrap voters)."""
+    c = Cluster(3, seed=3, snapshots=SnapshotPolicy(every=5, keep=0))
+    lead = elected(c)
+    c.run(200)  # the leader's no-op commits: changes may start
+    new = c.add_node()
+    c.propose_conf_change(ConfChange(ConfChangeType.ADD_LEARNER, new))
+    c.run(200)
+    c.propose_conf_change(ConfChange(ConfChangeType.PROMOTE, new))
+    c.run(200)
+    f = next(i for i in (1, 2, 3) if i != lead)
+    c.propose_conf_change(ConfChange(ConfChangeType.REMOVE, f))
+    c.run(200)
+    for k in range(30):  # the changes end up in snapshots; the logs no longer hold them
+        c.propose(b"r%d" % k)
+        c.run(20)
+    c.run(300)
+    want = c.conf_state(lead)
+    assert new in want.voters and f not in want.members
+    snap = c.storage[lead].snapshot()
+    assert (snap.voters, snap.learners) == (want.voters, want.learners)
+    assert not any(e.kind == EntryKind.CONF_CHANGE for e in c.log(lead))  # compacted away
+    late = c.add_node()  # knows only the bootstrap voters
+    c.propose_conf_change(ConfChange(ConfChangeType.ADD_LEARNER, late))
+    for k in range(30):
+        c.propose(b"s%d" % k)
+        c.run(20)
+    c.run(500)
+    assert c.snapshots_installed >= 1
+    assert c.conf_state(late) == c.conf_state(lead) and late in c.conf_state(late).learners
+    other = next(i for i in want.voters if i != lead)
+    c.crash(other)
+    c.restart(other)
+    c.run(300)
+    assert c.conf_state(other) == c.conf_state(lead)

@@ -739,26 +739,24 @@ class DroneHost:
         self.drone.restore(snap.data)
         self._applied_index = self._snap_index = snap.index
         for rec in self.drone.state.records.values():
-            data = rec.encode()
-            self._write_step(
-                {
-                    "step": rec.step,
-                    "committed": True,
-                    "status": rec.status,
-                    "term": rec.term,
-                    "record": record_hash(data),
-                    "digest": rec.digest,
-                    "detector": rec.detector,
-                    "faulty": _ids(rec.faulty),
-                    "missing": _ids(rec.missing),
-                    "positions": _jsonable(rec.positions),
-                    "hpl": _levels(rec.hpl),
-                    "vpl": _levels(rec.vpl),
-                    "reported": self._reported.get(rec.step),
-                    "applied_unix_s": round(time.time(), 4),
-                    "from_snapshot": snap.index,
-                }
-            )
+            self._write_step(self._record_row(rec, rec.encode(), time.time(), from_snapshot=snap.index))
+
+    def _record_row(self, rec: StepRecord, data: bytes, now: float, **extra: int) -> dict:
+        """A committed step's row of the step file (``extra``: the log index it was applied
+        at, or the snapshot it came from)."""
+        row = {"step": rec.step, "committed": True, "status": rec.status, "term": rec.term, **extra}
+        return row | {
+            "record": record_hash(data),
+            "digest": rec.digest,
+            "detector": rec.detector,
+            "faulty": _ids(rec.faulty),
+            "missing": _ids(rec.missing),
+            "positions": _jsonable(rec.positions),
+            "hpl": _levels(rec.hpl),
+            "vpl": _levels(rec.vpl),
+            "reported": self._reported.get(rec.step),
+            "applied_unix_s": round(now, 4),
+        }
 
     def _apply(self, entry: Entry | Snapshot) -> None:
         if isinstance(entry, Snapshot):
@@ -776,25 +774,7 @@ class DroneHost:
             self._write_step(
                 {"step": s, "committed": False, "status": "skipped", "reported": self._reported.get(s)}
             )
-        self._write_step(
-            {
-                "step": rec.step,
-                "committed": True,
-                "status": rec.status,
-                "term": rec.term,
-                "index": entry.index,
-                "record": record_hash(entry.data),
-                "digest": rec.digest,
-                "detector": rec.detector,
-                "faulty": _ids(rec.faulty),
-                "missing": _ids(rec.missing),
-                "positions": _jsonable(rec.positions),
-                "hpl": _levels(rec.hpl),
-                "vpl": _levels(rec.vpl),
-                "reported": self._reported.get(rec.step),
-                "applied_unix_s": round(now, 4),
-            }
-        )
+        self._write_step(self._record_row(rec, entry.data, now, index=entry.index))
         i = self.index
         k_now = min(int((now - self.swarm.start_unix_s) / self.sc.dt_s), self.sc.steps)
         if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - REALIGN_STEPS:

@@ -249,8 +249,8 @@ MUTANTS: tuple[Mutant, ...] = (
         "snapshot-wrong-term",
         "a snapshot records the term after the one of its last entry",
         "storage.py",
-        "        self._snap = Snapshot(index, self._b.term(index), bytes(data))",
-        "        self._snap = Snapshot(index, self._b.term(index) + 1, bytes(data))",
+        "        self._snap = _snapshot(index, self._b.term(index), data, conf)",
+        "        self._snap = _snapshot(index, self._b.term(index) + 1, data, conf)",
     ),
     Mutant(
         "timeout-not-randomised",

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from collections.abc import Callable
 
 from swarmraft.raft.log import RaftLog
 from swarmraft.raft.progress import Inflights, Progress
@@ -36,8 +37,20 @@ from swarmraft.raft.types import (
 
 
 class RaftNode:
-    def __init__(self, config: RaftConfig, storage: Storage, rng: random.Random, applied: int = 0) -> None:
+    """``validate`` (optional): the host's check of a new entry before the node persists and
+    acknowledges it (a SwarmRaft voter's audit of its leader's record). See `_handle_append`."""
+
+    def __init__(
+        self,
+        config: RaftConfig,
+        storage: Storage,
+        rng: random.Random,
+        applied: int = 0,
+        validate: Callable[[Entry], bool] | None = None,
+    ) -> None:
         self.config = config
+        self.validate = validate
+        self.refused = 0  # entries ``validate`` refused
         self.id = config.id
         self.rng = rng
         hs = storage.initial_state()
@@ -68,6 +81,7 @@ class RaftNode:
             commit=self.log.committed,
             applied=self.log.applied,
             last_index=self.log.last_index(),
+            refused=self.refused,
         )
 
     def tick(self) -> None:
@@ -456,7 +470,25 @@ class RaftNode:
         if m.index < self.log.committed:
             self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=self.log.committed))
             return
-        last = self.log.maybe_append(m.index, m.log_term, m.commit, m.entries)
+        entries, refused = m.entries, False
+        if self.validate is not None and entries and self.log.match_term(m.index, m.log_term):
+            # New normal entries (not those the log already holds) are validated in order; at
+            # the first refused one the node keeps the valid prefix and acknowledges only that.
+            # No reject (the leader would probe and resend forever): it counts the refusal and
+            # starts a forced election (the leader is faulty: the reason is carried, so neither
+            # PreVote nor the lease stops it). The vote restriction still holds.
+            for k, e in enumerate(entries):
+                if self.log.match_term(e.index, e.term) or e.kind != EntryKind.NORMAL:
+                    continue
+                if not self.validate(e):
+                    entries, refused = entries[:k], True
+                    break
+        last = self.log.maybe_append(m.index, m.log_term, m.commit, entries)
+        if refused:
+            self.refused += 1
+            self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=m.index + len(entries)))
+            self.campaign(force=True)
+            return
         if last is not None:
             self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=last))
         else:

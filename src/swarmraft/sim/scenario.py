@@ -104,6 +104,15 @@ class ProtocolTimeConfig(_Strict):
     deadline_ms: float = Field(60.0, gt=0, description="leader waits for reports this long")
     innovation_window_s: float = Field(5.0, gt=0, description="INS prediction window of the gate")
     innovation_gate: float = Field(25.9, ge=0, description="chi-square 3 dof threshold; 0: off")
+    audit: bool = Field(True, description="voters audit every record before acknowledging it")
+    censor_k: int = Field(5, ge=0, description="censorship: more than k omissions ...")
+    censor_m: int = Field(20, ge=1, description="... in the last m records of a term")
+
+    @model_validator(mode="after")
+    def _censor(self) -> ProtocolTimeConfig:
+        if self.censor_k >= self.censor_m:
+            raise ValueError(f"censor_k: {self.censor_k} must be below censor_m = {self.censor_m}")
+        return self
 
 
 class SpoofConfig(_Strict):
@@ -125,9 +134,11 @@ class OutageConfig(_Strict):
 
 
 class FaultConfig(_Strict):
-    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss"]
+    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss", "lying-leader"]
     at_s: float = Field(ge=0)
     drone: int | None = None
+    mode: Literal["move", "clear", "accuse", "censor"] | None = Field(None, description="lying-leader")
+    offset_m: float | None = Field(None, gt=0, description="lying-leader move: shift east, m")
     groups: list[list[int]] = Field(default_factory=list)
     value: float | None = Field(None, ge=0, le=1, description="loss probability")
     for_s: float | None = Field(None, gt=0, description="pause: how long, s")
@@ -188,8 +199,16 @@ class Scenario(_Strict):
                 raise ValueError(
                     f"fault[{k}].at_s: {f.at_s:g} s is not before the mission's end ({self.duration_s:g} s)"
                 )
-            if f.kind in ("crash", "restart") and f.drone is None:
+            if f.kind in ("crash", "restart", "lying-leader") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
+            if f.kind == "lying-leader" and f.mode is None:
+                raise ValueError(f"fault[{k}].mode: lying-leader needs one of move, clear, accuse, censor")
+            if f.kind != "lying-leader" and f.mode is not None:
+                raise ValueError(f"fault[{k}].mode: only a lying-leader fault has a mode")
+            if f.offset_m is not None and f.mode != "move":
+                raise ValueError(f"fault[{k}].offset_m: only a lying-leader move has an offset")
+            if f.kind == "lying-leader" and not self.protocol.audit:
+                raise ValueError(f"fault[{k}].kind: lying-leader needs protocol.audit = true")
             if f.drone is not None:
                 check([f.drone], f"fault[{k}].drone")
             if f.kind == "partition":
@@ -203,6 +222,8 @@ class Scenario(_Strict):
                 raise ValueError(f"fault[{k}].for_s: pause needs a duration")
             if f.kind != "pause" and f.for_s is not None:
                 raise ValueError(f"fault[{k}].for_s: only a pause has a duration")
+        if sum(f.kind == "lying-leader" for f in self.fault) > 1:
+            raise ValueError("fault: at most one lying-leader fault")
         if self.raft.heartbeat_tick >= self.raft.election_tick:
             raise ValueError("raft.heartbeat_tick: must be below election_tick")
         try:

@@ -14,6 +14,7 @@ from pydantic import ValidationError
 
 from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import POSITION_TOL_M
+from swarmraft.protocol.drone import Prior, compute_record
 from swarmraft.raft import Entry, EntryKind, MemoryStorage, Message, MsgType, RaftConfig, RaftNode
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.runtime import Cluster
@@ -110,10 +111,12 @@ def test_falsified_records_are_refused(lie: str) -> None:
         rec = replace(rec, faulty=flags)
     elif lie == "status":
         rec = replace(rec, status="alarm")
-    elif lie == "report-forged":  # a report altered, its drone's signature kept
-        r = rec.reports[4]
+    elif lie == "report-forged":  # a report altered (its drone's signature kept), and the
+        r = rec.reports[4]  # verdict honestly computed from it: only the signature tells
         forged = replace(r, position=r.position + [5.0, 0, 0])
-        rec = replace(rec, reports=rec.reports[:4] + (forged,) + rec.reports[5:])
+        reports = {q.drone: q for q in rec.reports} | {4: forged}
+        prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+        rec = replace(compute_record(12, 1, reports, prior, v.config), leader=rec.leader)
     elif lie == "report-dropped":  # the record's verdict kept, one of its reports left out
         rec = replace(rec, reports=rec.reports[:4] + rec.reports[5:])
     elif lie == "params":
@@ -162,8 +165,6 @@ def test_censorship_windows_restart_with_each_term() -> None:
         v.audit.note_report(next(r for r in rec.reports if r.drone == left_out))
         kept = tuple(r for r in rec.reports if r.drone != left_out)
         # the verdict without the drone's report, as an honest leader lacking it computes it
-        from swarmraft.protocol.drone import Prior, compute_record
-
         prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
         again = compute_record(k, term, {r.drone: r for r in kept}, prior, w.protocol)
         again = replace(again, leader=0)

@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 POSITION_TOL_M = 1e-4
 #: (k, m): a leader is faulty when one drone's reports are omitted in more than k of the
 #: last m records of its term (chosen by `benchmarks/bench_censor.py`, docs/audit.md)
-CENSOR = (5, 20)
+CENSOR = (10, 20)
 #: steps of reports, records and omissions kept
 KEEP_STEPS = 64
 

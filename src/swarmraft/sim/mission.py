@@ -348,6 +348,8 @@ class Mission:
             "falsified_proposed": len(self.falsified),
             "liar": self.liar,
             "first_lie_s": self.first_lie_s,
+            "first_refusal_s": next((t for t, node, _, _ in self.refusals if node != self.liar), None),
+            "first_finding_s": next((t for t, node, _ in self.suspicions if node != self.liar), None),
         }
 
     # -- applying ---------------------------------------------------------------------------

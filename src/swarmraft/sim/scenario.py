@@ -105,7 +105,7 @@ class ProtocolTimeConfig(_Strict):
     innovation_window_s: float = Field(5.0, gt=0, description="INS prediction window of the gate")
     innovation_gate: float = Field(25.9, ge=0, description="chi-square 3 dof threshold; 0: off")
     audit: bool = Field(True, description="voters audit every record before acknowledging it")
-    censor_k: int = Field(5, ge=0, description="censorship: more than k omissions ...")
+    censor_k: int = Field(10, ge=0, description="censorship: more than k omissions ...")
     censor_m: int = Field(20, ge=1, description="... in the last m records of a term")
 
     @model_validator(mode="after")

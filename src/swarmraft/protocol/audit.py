@@ -156,16 +156,17 @@ class Auditor:
         key = _digest(data)
         if self.cache is not None and key in self.cache:
             return self.cache[key]
-        reason = self._evidence_uncached(rec)
+        reason = self._evidence_uncached(rec, data[: len(data) - len(rec.signature)])
         if self.cache is not None:
             self.cache[key] = reason
         return reason
 
-    def _evidence_uncached(self, rec: StepRecord) -> str | None:
+    def _evidence_uncached(self, rec: StepRecord, body: bytes) -> str | None:
+        """``body``: the signed bytes as received (what the signature covers)."""
         c, keys = self.drone.config, self.drone.keys
         if len(rec.faulty) != c.n:
             return f"{len(rec.faulty)} drones, the swarm has {c.n}"
-        if not keys.verify_bytes(rec.leader, rec.body(), rec.signature):
+        if not keys.verify_bytes(rec.leader, body, rec.signature):
             return f"leader signature (drone {rec.leader + 1})"
         if rec.detector != c.detector or rec.params != canonical_params(c.detector_params):
             return "detector or parameters are not the swarm's"

@@ -224,12 +224,20 @@ class Auditor:
         return f"prior step {rec.prior_step} is not a settled record held for it"
 
     # -- censorship --------------------------------------------------------------------------
-    def note_report(self, report: Report) -> bool:
+    def note_report(self, report: Report, data: bytes | None = None) -> bool:
         """A report received directly (the fan-out): held for its step if its signature
-        verifies and the step's deadline has not passed here."""
+        verifies and the step's deadline has not passed here. ``data``: its bytes, the key
+        of the shared memo (``cache``) of the signature check."""
         if report.step in self.closed or report.drone in self.timely.get(report.step, ()):
             return False
-        if not self.drone.keys.verify(report):
+        if self.cache is not None and data is not None:
+            key = b"report" + _digest(data)
+            if key not in self.cache:
+                self.cache[key] = self.drone.keys.verify(report)
+            ok = self.cache[key]
+        else:
+            ok = self.drone.keys.verify(report)
+        if not ok:
             return False
         self.timely.setdefault(report.step, set()).add(report.drone)
         return True

@@ -234,7 +234,7 @@ class Mission:
                 self.cluster.send_app(node, j, self._fanned, data, rng=self._fan_rng)
 
     def _fanned(self, node: int, data: bytes) -> None:
-        self.drones[node - 1].audit.note_report(Report.decode(data))
+        self.drones[node - 1].audit.note_report(Report.decode(data), data)
 
     def _retry(self, k: int) -> None:
         """Resend step k's report if the leader did not acknowledge it, or if the leader

@@ -296,3 +296,18 @@ def test_lying_leader_bad_input_is_one_line(fault: dict, field: str) -> None:
     with pytest.raises(ValidationError) as exc:
         Scenario(drones=5, duration_s=3.0, fault=[fault])
     assert field in str(exc.value)
+
+
+@pytest.mark.parametrize("name", ["paper-recovery-6-2", "packet-loss-20"])
+def test_shipped_scenarios_never_accuse_their_leaders(name: str) -> None:
+    """A sample of `accept_audit.py honest`: shipped scenarios (the first 8 s) on two seeds."""
+    import tomllib
+
+    from swarmraft.sim.scenario import shipped_scenarios
+
+    data = tomllib.loads(shipped_scenarios()[name].read_text())
+    data["duration_s"] = min(data.get("duration_s", 60.0), 8.0)
+    for seed in (1, 2):
+        log = run_mission(Scenario(**{**data, "seed": seed}))
+        assert log.audit["refused_entries"] == 0 and log.audit["censorship_findings"] == 0
+        assert log.audit["refused_applies"] == 0 and log.committed.sum() > 0

@@ -153,6 +153,7 @@ class Mission:
         self.drones = [self._new_drone(i) for i in range(n)]
         # the report fan-out's own generator: it must not shift the draws of the rest of the run
         self._fan_rng = random.Random(sc.seed * 7_919 + 17)
+        self._depose_rng = random.Random(sc.seed * 7_919 + 29)
         self.liar: int | None = None  # the compromised drone (node id), lying-leader fault
         self._lie = next((f for f in sc.fault if f.kind == "lying-leader"), None)
         self._lying = False
@@ -330,11 +331,21 @@ class Mission:
         if not ok:
             step, reason = audit.refused[n_refused]
             self.refusals.append((now, node, step, reason))
+        term = audit.omission_term
         why = audit.take_suspicion()
         if why is not None:
             self.suspicions.append((now, node, why))
-            self.cluster.loop.after(0, self.cluster.campaign, node, True)
+            # Every voter finds a censoring leader on the same record: campaigning at once,
+            # they split the vote (at 17 drones a new leader was deposed again by the churn).
+            # Each waits a random 0-30 ms and gives up if its term moved on (it voted).
+            wait = self._depose_rng.uniform(0, 3 * self.sc.raft.tick_ms)
+            self.cluster.loop.after(wait, self._depose, node, term)
         return ok
+
+    def _depose(self, node: int, term: int) -> None:
+        rn = self.cluster.nodes.get(node)
+        if rn is not None and rn.term == term:
+            self.cluster.campaign(node, True)
 
     def audit_summary(self) -> dict:
         """Counts of the audit: refused entries (at append, by honest drones), refused applies,

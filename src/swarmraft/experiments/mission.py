@@ -349,7 +349,13 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "refused_proposals": log.refused_proposals,
         "events": [f"{t:.1f} s: {e}" for t, e in log.events],
         "integrity": integrity_summary(log),
+        # only with a lying-leader fault: the files of other missions stay as they were
+        **({"audit": _rounded(log.audit)} if any(f.kind == "lying-leader" for f in sc.fault) else {}),
     }
+
+
+def _rounded(audit: dict) -> dict:
+    return {k: round(v, 3) if isinstance(v, float) else v for k, v in audit.items()}
 
 
 def misleading_information(log: MissionLog) -> np.ndarray:

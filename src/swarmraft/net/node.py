@@ -113,10 +113,27 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
 
 def entries_per_append(n: int) -> int:
     """How many records of an n-drone swarm fit one MsgApp datagram (at most 64): a MsgApp
-    must fit `wire.MAX_PAYLOAD`."""
+    must fit `wire.MAX_PAYLOAD`. A record carries its n signed reports (docs/audit.md)."""
     z = np.zeros(n)
-    rec = StepRecord(0, 0, np.zeros((n, 3)), z > 0, z > 0, "unidentifiable", "x" * 32, "0" * 32, z, z)
-    per_entry = len(rec.encode()) + 21 + 64  # entry header, and room for longer names
+    report = Report(0, 0, np.zeros(3), "gnss", z, np.zeros(3), bytes(64))
+    rec = StepRecord(
+        0,
+        0,
+        np.zeros((n, 3)),
+        z > 0,
+        z > 0,
+        "unidentifiable",
+        "x" * 32,
+        "0" * 32,
+        z,
+        z,
+        prior_step=0,
+        prior_positions=np.zeros((n, 3)),
+        prior_faulty=z > 0,
+        reports=(report,) * n,
+        signature=bytes(64),
+    )
+    per_entry = len(rec.encode()) + 21 + 64 + 256  # entry header, room for names and parameters
     return max(1, min(64, (wire.MAX_PAYLOAD - 54) // per_entry))
 
 

@@ -17,15 +17,15 @@ drone holds the same records.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
-from swarmraft.protocol.records import Report, StepRecord, reports_digest
+from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
 MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
@@ -123,7 +123,21 @@ _U32 = struct.Struct("<I")
 
 
 class SwarmDrone:
-    def __init__(self, index: int, config: ProtocolConfig, keys: Keyring) -> None:
+    """One drone's protocol state. With ``audit`` (docs/audit.md) the drone checks every record
+    before it applies it (a learner's check; a voter's comes earlier, at append: `audit`'s
+    `Auditor.validate` is the Raft node's validator) and refuses a record that does not
+    follow from its evidence; ``recompute_cache`` is the simulator's shared memo of the
+    evidence checks (`Auditor`)."""
+
+    def __init__(
+        self,
+        index: int,
+        config: ProtocolConfig,
+        keys: Keyring,
+        audit: bool = False,
+        recompute_cache: dict | None = None,
+        censor: tuple[int, int] | None = None,
+    ) -> None:
         self.index = index
         self.config = config
         self.keys = keys
@@ -131,7 +145,13 @@ class SwarmDrone:
         self.inbox: dict[int, dict[int, Report]] = {}
         self.last_seen: dict[int, int] = {}  # drone -> last step it reported
         self.rejected = 0
+        self.refused_applies = 0  # committed records this drone's audit refused to apply
         get_detector(config.detector)
+        self.audit = None
+        if audit:
+            from swarmraft.protocol.audit import CENSOR, Auditor
+
+            self.audit = Auditor(self, recompute_cache, censor or CENSOR)
 
     # -- every drone ------------------------------------------------------------------------
     def snapshot(self) -> bytes:
@@ -153,8 +173,17 @@ class SwarmDrone:
         )
 
     def apply(self, data: bytes) -> StepRecord | None:
-        """Apply one committed entry; returns the record if it took effect."""
-        rec = StepRecord.decode(data)
+        """Apply one committed entry; returns the record if it took effect. An auditing drone
+        first checks a record it has not already checked (a learner, or a voter replaying its
+        log after a restart) and does not apply one that fails (counted in
+        ``refused_applies``)."""
+        if self.audit is not None and not self.audit.passed(data):
+            rec, reason = self.audit.check(data)
+            if reason is not None:
+                self.refused_applies += 1
+                return None
+        else:
+            rec = StepRecord.decode(data)
         st = self.state
         if rec.step <= st.last_step:
             st.ignored += 1
@@ -196,102 +225,134 @@ class SwarmDrone:
 
     def verify_step(self, step: int, term: int) -> StepRecord | None:
         """The leader's verdict for a step from the reports it holds (None if it has none,
-        or the step is already decided)."""
+        or the step is already decided), with its evidence (unsigned: see `seal`)."""
         reports = self.inbox.pop(step, {})
         for old in [k for k in self.inbox if k < step]:
             del self.inbox[old]
         if not reports or step <= self.state.last_step:
             return None
-        c = self.config
-        n = c.n
-        present = np.zeros(n, dtype=bool)
-        present[list(reports)] = True
-        reported = np.full((n, 3), np.nan)
-        ranges = np.full((n, n), np.nan)
-        for i, r in reports.items():
-            reported[i] = r.position
-            ranges[i] = r.ranges
-        np.fill_diagonal(ranges, 0.0)
-        idx = np.flatnonzero(present)
         # The last record's positions are a prior (0.1 s old): they resolve the mirror of three
         # anchors, and stand in for a flagged drone whose geometry is insufficient. A record
         # whose verdict is alarm or unidentifiable is not a prior: its flags and positions are
         # what the data could not settle, and carrying them on locks the wrong partition in.
         last = self.trusted_record(step)
-        prior = last.positions if last is not None else np.full((n, 3), np.nan)
-        sub = SnapshotBatch(
-            reported[idx][None],
-            ranges[np.ix_(idx, idx)][None],
-            c.gnss_sigma,
-            c.range_sigma,
-            prior[idx][None],
-            c.prior_sigma,
-        )
-        v = verify_batch(sub, c.detector, **c.detector_params)
-        positions = np.full((n, 3), np.nan)
-        faulty = np.zeros(n, dtype=bool)
-        positions[idx] = v.positions[0]
-        faulty[idx] = v.faulty[0]
-        hpl, vpl = np.full(n, np.nan), np.full(n, np.nan)
-        hpl[idx], vpl[idx] = v.hpl[0], v.vpl[0]
-        status = str(v.status[0])
-        stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
-        positions[stuck] = prior[stuck]
-        det_faulty = faulty.copy()
-        # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
-        # the window (a slow drag-off, invisible to one snapshot).
-        gate = np.zeros(n, dtype=bool)
-        sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
-        if c.innovation_gate is not None:
-            for i, r in reports.items():
-                if r.innovation is not None and np.isfinite(r.innovation).all():
-                    gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
-        # Latch: drones flagged in the last record stay suspect until their reports agree with
-        # the trusted drones again.
-        before = last.faulty if last is not None else np.zeros(n, dtype=bool)
-        carry = present & before & ~faulty & ~gate
-        faulty |= gate
-        if (gate | carry | ~present).any():
-            trusted = present & ~faulty & ~carry
-            if trusted.sum() >= 4:
-                start = np.where(present[:, None], reported, np.nanmean(reported[trusted], axis=0))
-                cov = gnss_covariance(*c.gnss_sigma)
-                est, st = trusted_estimate(
-                    start[None],
-                    ranges[None],
-                    trusted[None],
-                    cov,
-                    c.range_sigma,
-                    prior=prior[None],
-                    prior_sigma=c.prior_sigma,
-                )
-                est = est[0]
-                gate_chi2 = c.innovation_gate or 25.9
-                disagree = np.sum((reported - est) ** 2 / np.diag(cov), axis=1) > gate_chi2
-                faulty |= carry & disagree
-                # the final trusted set differs from the detector's: re-estimate what it
-                # would have (for `paper`, whose honest positions are the reports, only the
-                # newly flagged drones)
-                again = faulty & ~det_faulty & present
-                if c.detector != "paper" and again.any():
-                    again = present
-                positions[again] = est[again]
-                found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
-                positions[found] = est[found]
-                # re-estimated here, not by the detector: no protection level for them
-                hpl[again | found] = np.nan
-                vpl[again | found] = np.nan
-                if st[0] != "ok" and status == "ok":
-                    status = str(st[0])
-        return StepRecord(
-            step,
-            term,
-            positions,
-            faulty,
-            ~present,
-            status,
-            c.detector,
-            reports_digest(list(reports.values())),
-            hpl,
-            vpl,
-        )
+        prior = None if last is None else Prior(last.step, last.positions, last.faulty)
+        return compute_record(step, term, reports, prior, self.config)
+
+    def seal(self, rec: StepRecord) -> bytes:
+        """The record signed by this drone as leader, encoded for the log."""
+        rec = replace(rec, leader=self.index, signature=b"")
+        data = rec.body()
+        data += self.keys.sign_bytes(self.index, data)
+        if self.audit is not None:
+            self.audit.proposed(data, StepRecord.decode(data))
+        return data
+
+
+class Prior(NamedTuple):
+    """The record a verification carries on: its step, positions and flags."""
+
+    step: int
+    positions: np.ndarray
+    faulty: np.ndarray
+
+
+def compute_record(
+    step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
+) -> StepRecord:
+    """The verification of one step: a pure function of the signed reports, the prior and
+    the configuration (the leader computes it; every auditor re-runs it on the evidence the
+    record carries, `swarmraft.protocol.audit`)."""
+    n = c.n
+    present = np.zeros(n, dtype=bool)
+    present[list(reports)] = True
+    reported = np.full((n, 3), np.nan)
+    ranges = np.full((n, n), np.nan)
+    for i, r in reports.items():
+        reported[i] = r.position
+        ranges[i] = r.ranges
+    np.fill_diagonal(ranges, 0.0)
+    idx = np.flatnonzero(present)
+    prior = last.positions if last is not None else np.full((n, 3), np.nan)
+
+    sub = SnapshotBatch(
+        reported[idx][None],
+        ranges[np.ix_(idx, idx)][None],
+        c.gnss_sigma,
+        c.range_sigma,
+        prior[idx][None],
+        c.prior_sigma,
+    )
+    v = verify_batch(sub, c.detector, **c.detector_params)
+    positions = np.full((n, 3), np.nan)
+    faulty = np.zeros(n, dtype=bool)
+    positions[idx] = v.positions[0]
+    faulty[idx] = v.faulty[0]
+    hpl, vpl = np.full(n, np.nan), np.full(n, np.nan)
+    hpl[idx], vpl[idx] = v.hpl[0], v.vpl[0]
+    status = str(v.status[0])
+    stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
+    positions[stuck] = prior[stuck]
+    det_faulty = faulty.copy()
+    # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
+    # the window (a slow drag-off, invisible to one snapshot).
+    gate = np.zeros(n, dtype=bool)
+    sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
+    if c.innovation_gate is not None:
+        for i, r in reports.items():
+            if r.innovation is not None and np.isfinite(r.innovation).all():
+                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+    # Latch: drones flagged in the last record stay suspect until their reports agree with
+    # the trusted drones again.
+    before = last.faulty if last is not None else np.zeros(n, dtype=bool)
+    carry = present & before & ~faulty & ~gate
+    faulty |= gate
+    if (gate | carry | ~present).any():
+        trusted = present & ~faulty & ~carry
+        if trusted.sum() >= 4:
+            start = np.where(present[:, None], reported, np.nanmean(reported[trusted], axis=0))
+            cov = gnss_covariance(*c.gnss_sigma)
+            est, st = trusted_estimate(
+                start[None],
+                ranges[None],
+                trusted[None],
+                cov,
+                c.range_sigma,
+                prior=prior[None],
+                prior_sigma=c.prior_sigma,
+            )
+            est = est[0]
+            gate_chi2 = c.innovation_gate or 25.9
+            disagree = np.sum((reported - est) ** 2 / np.diag(cov), axis=1) > gate_chi2
+            faulty |= carry & disagree
+            # the final trusted set differs from the detector's: re-estimate what it
+            # would have (for `paper`, whose honest positions are the reports, only the
+            # newly flagged drones)
+            again = faulty & ~det_faulty & present
+            if c.detector != "paper" and again.any():
+                again = present
+            positions[again] = est[again]
+            found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
+            positions[found] = est[found]
+            # re-estimated here, not by the detector: no protection level for them
+            hpl[again | found] = np.nan
+            vpl[again | found] = np.nan
+            if st[0] != "ok" and status == "ok":
+                status = str(st[0])
+    return StepRecord(
+        step,
+        term,
+        positions,
+        faulty,
+        ~present,
+        status,
+        c.detector,
+        reports_digest(list(reports.values())),
+        hpl,
+        vpl,
+        params=canonical_params(c.detector_params),
+        prior_step=last.step if last is not None else -1,
+        prior_positions=None if last is None else np.asarray(last.positions, float),
+        prior_faulty=None if last is None else np.asarray(last.faulty, bool),
+        reports=tuple(reports[i] for i in sorted(reports)),
+    )

@@ -1,6 +1,8 @@
 """What SwarmRaft drones exchange: signed `Report`s to the leader, and the `StepRecord` the
-leader proposes to the Raft log. Both encode to compact binary (a fixed header and float64
-arrays); a record carries the digest of the reports it was computed from."""
+leader proposes to the Raft log. Both encode to compact binary (a fixed header, float64
+arrays, length-prefixed parts; no pickle). A record carries everything its verification
+read (the signed reports, the detector's parameters, the prior) and the leader's signature,
+so any drone can re-run the verification and check it (`swarmraft.protocol.audit`)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,9 @@ import numpy as np
 
 _SOURCES = ("gnss", "ins")
 _REPORT_HEAD = struct.Struct("<iiBBH")  # step, drone, source, has innovation, n
-_RECORD_HEAD = struct.Struct("<iqH")  # step, term, n
+_RECORD_HEAD = struct.Struct("<iqHiiH")  # step, term, n, leader, prior step, reports
+_LEN16 = struct.Struct("<H")
+_LEN32 = struct.Struct("<I")
 
 
 @dataclass(frozen=True)
@@ -65,7 +69,13 @@ class StepRecord:
     determined), flags, which drones were missing (no report), the verdict status, the
     detector, the leader's term, the digest of the reports it was computed from, and each
     drone's horizontal and vertical protection level hpl, vpl (n,) in m (nan where the
-    detector gives none, inf where the position is not protected)."""
+    detector gives none, inf where the position is not protected).
+
+    The evidence (docs/audit.md): ``leader`` (the proposer's 0-based index, -1 if unsigned),
+    ``params`` (the detector's parameters as canonical JSON), the prior the verification
+    used (``prior_step``, -1 for none, with that record's positions and flags), the signed
+    ``reports`` themselves, in drone order, and ``signature``, the leader's Ed25519 signature
+    over `body`."""
 
     step: int
     term: int
@@ -77,26 +87,46 @@ class StepRecord:
     digest: str
     hpl: np.ndarray | None = None
     vpl: np.ndarray | None = None
+    leader: int = -1
+    params: str = "{}"
+    prior_step: int = -1
+    prior_positions: np.ndarray | None = None
+    prior_faulty: np.ndarray | None = None
+    reports: tuple[Report, ...] = ()
+    signature: bytes = b""
 
-    def encode(self) -> bytes:
+    def body(self) -> bytes:
+        """Every byte but the signature (what the leader signs)."""
         n = len(self.faulty)
-        text = json.dumps([self.status, self.detector, self.digest]).encode()
         nan = np.full(n, np.nan)
         hpl = nan if self.hpl is None else self.hpl
         vpl = nan if self.vpl is None else self.vpl
-        return (
-            _RECORD_HEAD.pack(self.step, self.term, n)
-            + np.asarray(self.positions, "<f8").tobytes()
-            + np.packbits(self.faulty).tobytes()
-            + np.packbits(self.missing).tobytes()
-            + np.asarray(hpl, "<f8").tobytes()
-            + np.asarray(vpl, "<f8").tobytes()
-            + text
-        )
+        prior = np.full((n, 3), np.nan) if self.prior_positions is None else self.prior_positions
+        prior_faulty = np.zeros(n, bool) if self.prior_faulty is None else self.prior_faulty
+        text = json.dumps([self.status, self.detector, self.digest, self.params]).encode()
+        parts = [
+            _RECORD_HEAD.pack(self.step, self.term, n, self.leader, self.prior_step, len(self.reports)),
+            np.asarray(self.positions, "<f8").tobytes(),
+            np.packbits(self.faulty).tobytes(),
+            np.packbits(self.missing).tobytes(),
+            np.asarray(hpl, "<f8").tobytes(),
+            np.asarray(vpl, "<f8").tobytes(),
+            np.asarray(prior, "<f8").tobytes(),
+            np.packbits(prior_faulty).tobytes(),
+        ]
+        for r in self.reports:
+            data = r.encode()
+            parts += [_LEN16.pack(len(data)), data]
+        parts += [_LEN32.pack(len(text)), text]
+        return b"".join(parts)
+
+    def encode(self) -> bytes:
+        return self.body() + self.signature
 
     @classmethod
     def decode(cls, data: bytes) -> StepRecord:
-        step, term, n = _RECORD_HEAD.unpack_from(data)
+        """The record in ``data``; a malformed one raises ValueError (or struct.error)."""
+        step, term, n, leader, prior_step, count = _RECORD_HEAD.unpack_from(data)
         off = _RECORD_HEAD.size
         pos = np.frombuffer(data, "<f8", count=3 * n, offset=off).reshape(n, 3).copy()
         off += 24 * n
@@ -106,8 +136,49 @@ class StepRecord:
         off += 2 * nb
         hpl = np.frombuffer(data, "<f8", count=n, offset=off).copy()
         vpl = np.frombuffer(data, "<f8", count=n, offset=off + 8 * n).copy()
-        status, detector, digest = json.loads(data[off + 16 * n :])
-        return cls(step, term, pos, faulty, missing, status, detector, digest, hpl, vpl)
+        off += 16 * n
+        prior = np.frombuffer(data, "<f8", count=3 * n, offset=off).reshape(n, 3).copy()
+        off += 24 * n
+        prior_faulty = np.unpackbits(np.frombuffer(data, np.uint8, count=nb, offset=off))[:n].astype(bool)
+        off += nb
+        reports = []
+        for _ in range(count):
+            (size,) = _LEN16.unpack_from(data, off)
+            off += _LEN16.size
+            if off + size > len(data):
+                raise ValueError("record: a report runs past the end")
+            reports.append(Report.decode(data[off : off + size]))
+            off += size
+        (size,) = _LEN32.unpack_from(data, off)
+        off += _LEN32.size
+        if off + size > len(data):
+            raise ValueError("record: the text runs past the end")
+        status, detector, digest, params = json.loads(data[off : off + size])
+        return cls(
+            step,
+            term,
+            pos,
+            faulty,
+            missing,
+            status,
+            detector,
+            digest,
+            hpl,
+            vpl,
+            leader,
+            params,
+            prior_step,
+            prior if prior_step >= 0 else None,
+            prior_faulty if prior_step >= 0 else None,
+            tuple(reports),
+            bytes(data[off + size :]),
+        )
+
+
+def canonical_params(params: dict) -> str:
+    """A detector's parameters as canonical JSON (sorted keys, no spaces): the same
+    parameters give the same bytes on every drone."""
+    return json.dumps(params, sort_keys=True, separators=(",", ":"))
 
 
 def reports_digest(reports: list[Report]) -> str:

@@ -31,11 +31,18 @@ class Keyring:
         return replace(report, signature=self.private[report.drone].sign(report.body()).signature)
 
     def verify(self, report: Report) -> bool:
-        key = self.public.get(report.drone)
+        return self.verify_bytes(report.drone, report.body(), report.signature)
+
+    def sign_bytes(self, drone: int, data: bytes) -> bytes:
+        """Drone ``drone``'s 64-byte signature over ``data`` (a leader signing its record)."""
+        return self.private[drone].sign(data).signature
+
+    def verify_bytes(self, drone: int, data: bytes, signature: bytes) -> bool:
+        key = self.public.get(drone)
         if key is None:
             return False
         try:
-            key.verify(report.body(), report.signature)
+            key.verify(data, signature)
         except (BadSignatureError, ValueError, TypeError):
             return False
         return True

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from collections.abc import Callable
 
 from swarmraft.raft.log import RaftLog
 from swarmraft.raft.membership import ConfChange, ConfChangeType, ConfLog, ConfState
@@ -55,8 +56,20 @@ from swarmraft.raft.types import (
 
 
 class RaftNode:
-    def __init__(self, config: RaftConfig, storage: Storage, rng: random.Random, applied: int = 0) -> None:
+    """``validate`` (optional): the host's check of a new entry before the node persists and
+    acknowledges it (a SwarmRaft voter's audit of its leader's record). See `_handle_append`."""
+
+    def __init__(
+        self,
+        config: RaftConfig,
+        storage: Storage,
+        rng: random.Random,
+        applied: int = 0,
+        validate: Callable[[Entry], bool] | None = None,
+    ) -> None:
         self.config = config
+        self.validate = validate
+        self.refused = 0  # entries ``validate`` refused
         self.id = config.id
         self.rng = rng
         hs = storage.initial_state()
@@ -110,6 +123,7 @@ class RaftNode:
             commit=self.log.committed,
             applied=self.log.applied,
             last_index=self.log.last_index(),
+            refused=self.refused,
         )
 
     def tick(self) -> None:
@@ -590,30 +604,45 @@ class RaftNode:
             # append after a lost one) is rejected at once, as before.
             self._early.setdefault(m.index, m)
             return
-        last = self._take_append(m)
-        if last is None:
-            self._reject_append(m)
-            return
-        self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=last))
-        # held appends that continue from here (one after the other) go in now
-        while last is not None and last > last_index and (held := self._early.pop(last, None)):
-            last_index = last
-            last = self._take_append(held)
+        last, refused = self._take_append(m)
+        # held appends that continue from here (one after the other) go in after it
+        while True:
             if last is None:
-                self._reject_append(held)
-            else:
-                self._send(Message(MsgType.APP_RESP, self.id, held.frm, self.term, index=last))
+                self._reject_append(m)
+                return
+            self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=last))
+            if refused:
+                # No reject (the leader would probe and resend forever): the refusal is
+                # counted and a forced election starts (the leader is faulty: the reason is
+                # carried, so neither PreVote nor the lease stops it; the vote restriction
+                # still holds).
+                self.refused += 1
+                self.campaign(force=True)
+                return
+            if last <= last_index or (held := self._early.pop(last, None)) is None:
+                return
+            last_index, m = last, held
+            last, refused = self._take_append(m)
 
-    def _take_append(self, m: Message) -> int | None:
+    def _take_append(self, m: Message) -> tuple[int | None, bool]:
         """The log's consistency check and append (`RaftLog.maybe_append`), and the
-        configurations the log now holds (a truncation may undo one, an entry add one)."""
-        last = self.log.maybe_append(m.index, m.log_term, m.commit, m.entries)
-        if last is not None and (
-            self.confs.changes or any(e.kind == EntryKind.CONF_CHANGE for e in m.entries)
-        ):
+        configurations the log now holds (a truncation may undo one, an entry add one). With
+        a validator, new normal entries (not those the log already holds) are validated in
+        order first; at the first refused one only the valid prefix goes in. Returns the last
+        index appended (None: the check failed) and whether an entry was refused."""
+        entries, refused = m.entries, False
+        if self.validate is not None and entries and self.log.match_term(m.index, m.log_term):
+            for k, e in enumerate(entries):
+                if self.log.match_term(e.index, e.term) or e.kind != EntryKind.NORMAL:
+                    continue
+                if not self.validate(e):
+                    entries, refused = entries[:k], True
+                    break
+        last = self.log.maybe_append(m.index, m.log_term, m.commit, entries)
+        if last is not None and (self.confs.changes or any(e.kind == EntryKind.CONF_CHANGE for e in entries)):
             self.confs.truncate(self.log.term, self.log.first_index())
-            self.confs.add(m.entries)
-        return last
+            self.confs.add(entries)
+        return last, refused
 
     def _reject_append(self, m: Message) -> None:
         self._send(

@@ -146,6 +146,7 @@ class Status:
     commit: int
     applied: int
     last_index: int
+    refused: int = 0  # entries the node's validator refused (RaftNode ``validate``)
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,8 @@ experiments layer's job."""
 
 from __future__ import annotations
 
+import hashlib
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -54,6 +56,7 @@ class MissionLog:
     events: list[tuple[float, str]] = field(default_factory=list)
     ins_sigma_window: float = 0.0
     detector_params: dict = field(default_factory=dict)  # as used (calibrated thresholds included)
+    audit: dict = field(default_factory=dict)  # the audit's counts (`Mission.audit_summary`)
 
 
 def world_log(w: ScenarioWorld) -> MissionLog:
@@ -152,6 +155,7 @@ class Mission:
         link = LinkModel.of(sc.network)
         committee = sc.protocol.committee
         conf = initial_committee(range(1, n + 1), committee) if committee else None
+        self.auditing = sc.protocol.audit
         self.cluster = Cluster(
             n,
             seed=sc.seed,
@@ -166,6 +170,7 @@ class Mission:
             app_snapshot=lambda node: self.drones[node - 1].snapshot(),
             app_restore=lambda node, snap: self.drones[node - 1].restore(snap.data),
             storage=storage,
+            validate=self._validate if self.auditing else None,
         )
         # the committee's leader: when it last heard from each drone (ms), and since when it leads
         self._heard: dict[int, float] = {}
@@ -175,7 +180,19 @@ class Mission:
         self.calibration = w.calibration
         self.pcfg = w.protocol
         self.keys = Keyring.generate(n, w.rng_keys)
-        self.drones = [SwarmDrone(i, self.pcfg, self.keys) for i in range(n)]
+        # the evidence checks depend only on a record's bytes: drones share them (docs/audit.md)
+        self._audit_cache: dict = {}
+        self.drones = [self._new_drone(i) for i in range(n)]
+        # the report fan-out's own generator: it must not shift the draws of the rest of the run
+        self._fan_rng = random.Random(sc.seed * 7_919 + 17)
+        self._depose_rng = random.Random(sc.seed * 7_919 + 29)
+        self.liar: int | None = None  # the compromised drone (node id), lying-leader fault
+        self._lie = next((f for f in sc.fault if f.kind == "lying-leader"), None)
+        self._lying = False
+        self.falsified: dict[bytes, int] = {}  # digest of a falsified record -> its step
+        self.first_lie_s: float | None = None
+        self.refusals: list[tuple[float, int, int, str]] = []  # (s, node, step, reason)
+        self.suspicions: list[tuple[float, int, str]] = []  # (s, node, why)
         # INS state: the last position it was aligned to (time, position); it then integrates
         # the true motion plus its drift.
         self.ins_base_t = np.zeros(n)
@@ -183,6 +200,17 @@ class Mission:
         self.log = world_log(w)
         self.live = _live_copy(self.log) if on_step is not None else None
         self.sent_to: dict[int, int | None] = {}
+
+    def _new_drone(self, i: int) -> SwarmDrone:
+        sc = self.sc
+        return SwarmDrone(
+            i,
+            self.pcfg,
+            self.keys,
+            audit=self.auditing,
+            recompute_cache=self._audit_cache,
+            censor=(sc.protocol.censor_k, sc.protocol.censor_m),
+        )
 
     # -- sensing and reporting --------------------------------------------------------------
     def _ins(self, k: int) -> np.ndarray:
@@ -207,6 +235,8 @@ class Mission:
             report = self.drones[i].make_report(k, pos, source, ranges[i], innov)
             log.reported[k, i] = pos
             self._send_report(node, report)
+            if self.auditing:
+                self._fan_out(node, report)
         dl = sc.protocol.deadline_ms
         self.cluster.loop.after(dl / 2, self._retry, k)
         self.cluster.loop.after(dl, self._deadline, k)
@@ -224,6 +254,18 @@ class Mission:
             self._receive(node, report.encode())
         else:
             self.cluster.send_app(node, lead, self._receive, report.encode())
+
+    def _fan_out(self, node: int, report: Report) -> None:
+        """The report to every other drone but the leader it went to (the audit's censorship
+        check), on the fan-out's own generator."""
+        data = report.encode()
+        self.drones[node - 1].audit.note_report(report)
+        for j in self.cluster.ids:
+            if j != node and j != self.sent_to.get(node):
+                self.cluster.send_app(node, j, self._fanned, data, rng=self._fan_rng)
+
+    def _fanned(self, node: int, data: bytes) -> None:
+        self.drones[node - 1].audit.note_report(Report.decode(data), data)
 
     def _retry(self, k: int) -> None:
         """Resend step k's report if the leader did not acknowledge it, or if the leader
@@ -245,6 +287,11 @@ class Mission:
     def _receive(self, node: int, data: bytes) -> None:
         rep = Report.decode(data)
         drone = self.drones[node - 1]
+        lie = self._lie
+        if self._lying and node == self.liar and lie.mode == "censor" and rep.drone == lie.drone - 1:
+            return  # the lying leader drops the drone's reports
+        if drone.audit is not None:
+            drone.audit.note_report(rep)
         accepted = drone.receive(rep)
         if accepted:
             sender = rep.drone + 1
@@ -261,6 +308,9 @@ class Mission:
         self._acked.add((node, step))
 
     def _deadline(self, k: int) -> None:
+        if self.auditing:
+            for d in self.drones:
+                d.audit.close_step(k)
         lead = self.cluster.leader()
         self.log.leader[k] = lead or 0
         if lead is None:
@@ -297,15 +347,89 @@ class Mission:
 
     def _propose(self, lead: int, k: int) -> None:
         node = self.cluster.nodes[lead]
-        rec = self.drones[lead - 1].verify_step(k, node.term)
-        if rec is not None:
+        drone = self.drones[lead - 1]
+        rec = drone.verify_step(k, node.term)
+        if rec is None:
+            return
+        if not self.auditing:
             self.cluster.propose(rec.encode(), via=lead)
+            return
+        if self._lying and self.liar is None:
+            self.liar = lead  # the fault takes the first leader after its time
+        lie = self._falsify(rec) if self._lying and lead == self.liar else None
+        data = drone.seal(lie if lie is not None else rec)
+        if lie is not None:
+            self.falsified[hashlib.sha256(data).digest()] = k
+            if self.first_lie_s is None:
+                self.first_lie_s = self.cluster.now / 1000
+                self.log.events.append((self.first_lie_s, f"leader {lead} proposed a falsified record"))
+        self.cluster.propose(data, via=lead)
+
+    def _falsify(self, rec: StepRecord) -> StepRecord | None:
+        """The lying leader's record (None where the mode changes nothing: clearing a drone
+        that is not flagged, accusing one that is; censoring is done on receipt)."""
+        f = self._lie
+        d = f.drone - 1
+        if f.mode == "move":
+            pos = rec.positions.copy()
+            pos[d] = np.where(np.isfinite(pos[d]), pos[d], 0.0) + [f.offset_m or 10.0, 0.0, 0.0]
+            return replace(rec, positions=pos)
+        if f.mode in ("clear", "accuse") and bool(rec.faulty[d]) == (f.mode == "clear"):
+            flags = rec.faulty.copy()
+            flags[d] = f.mode == "accuse"
+            return replace(rec, faulty=flags)
+        return None
+
+    def _validate(self, node: int, entry: Entry) -> bool:
+        """Node's validator (its drone's audit); a refusal and a censorship finding are logged,
+        and a censorship finding starts a forced election (a refusal starts one in Raft)."""
+        audit = self.drones[node - 1].audit
+        n_refused = len(audit.refused)
+        ok = audit.validate(entry)
+        now = self.cluster.now / 1000
+        if not ok:
+            step, reason = audit.refused[n_refused]
+            self.refusals.append((now, node, step, reason))
+        term = audit.omission_term
+        why = audit.take_suspicion()
+        if why is not None:
+            self.suspicions.append((now, node, why))
+            # Every voter finds a censoring leader on the same record: campaigning at once,
+            # they split the vote (at 17 drones a new leader was deposed again by the churn).
+            # Each waits a random 0-30 ms and gives up if its term moved on (it voted).
+            wait = self._depose_rng.uniform(0, 3 * self.sc.raft.tick_ms)
+            self.cluster.loop.after(wait, self._depose, node, term)
+        return ok
+
+    def _depose(self, node: int, term: int) -> None:
+        rn = self.cluster.nodes.get(node)
+        if rn is not None and rn.term == term:
+            self.cluster.campaign(node, True)
+
+    def audit_summary(self) -> dict:
+        """Counts of the audit: refused entries (at append, by honest drones), refused applies,
+        censorship findings, priors that could not be checked, falsified records proposed."""
+        honest = [i for i in range(self.sc.drones) if i + 1 != self.liar]
+        return {
+            "refused_entries": sum(1 for _, node, _, _ in self.refusals if node != self.liar),
+            "refused_applies": sum(self.drones[i].refused_applies for i in honest),
+            "censorship_findings": sum(1 for _, node, _ in self.suspicions if node != self.liar),
+            "unchecked_priors": sum(self.drones[i].audit.unchecked_priors for i in honest),
+            "falsified_proposed": len(self.falsified),
+            "liar": self.liar,
+            "first_lie_s": self.first_lie_s,
+            "first_refusal_s": next((t for t, node, _, _ in self.refusals if node != self.liar), None),
+            "first_finding_s": next((t for t, node, _ in self.suspicions if node != self.liar), None),
+        }
 
     # -- applying ---------------------------------------------------------------------------
     def _on_apply(self, node: int, entry: Entry) -> None:
         if entry.kind != EntryKind.NORMAL:  # a no-op, or a membership change
             return
         i = node - 1
+        if self.falsified and node != self.liar and hashlib.sha256(entry.data).digest() in self.falsified:
+            now = self.cluster.now
+            raise AssertionError(f"invariant: honest drone {node} applies a falsified record ({now} ms)")
         rec = self.drones[i].apply(entry.data)
         if rec is None:
             return
@@ -333,15 +457,13 @@ class Mission:
         if f.kind == "crash":
             if c.alive(f.drone):
                 c.crash(f.drone)
-                self.drones[f.drone - 1] = SwarmDrone(
-                    f.drone - 1, self.pcfg, self.keys
-                )  # volatile state lost
+                self.drones[f.drone - 1] = self._new_drone(f.drone - 1)  # volatile state lost
             self.log.events.append((now, f"drone {f.drone} crashed"))
         elif f.kind == "crash-leader":
             lead = c.leader()
             if lead is not None:
                 c.crash(lead)
-                self.drones[lead - 1] = SwarmDrone(lead - 1, self.pcfg, self.keys)
+                self.drones[lead - 1] = self._new_drone(lead - 1)
             self.log.events.append((now, f"leader {lead} crashed"))
         elif f.kind == "transfer-leader":
             self.log.events.append((now, self._transfer(f.drone)))
@@ -358,6 +480,11 @@ class Mission:
         elif f.kind == "partition":
             c.partition(*f.groups)
             self.log.events.append((now, f"partition {f.groups}"))
+        elif f.kind == "lying-leader":
+            self._lying = True
+            self.liar = c.leader()
+            who = f"leader {self.liar}" if self.liar is not None else "the next leader"
+            self.log.events.append((now, f"{who} compromised: lies ({f.mode} drone {f.drone})"))
         elif f.kind == "heal":
             c.heal()
             self.log.events.append((now, "network healed"))
@@ -425,6 +552,8 @@ class Mission:
         log.status = log.status.astype(str)
         ins_aligned_in_outages(log, self.drift)
         log.detector_params = dict(self.pcfg.detector_params)
+        if self.auditing:
+            log.audit = self.audit_summary()
         return log
 
 

@@ -31,6 +31,7 @@ import heapq
 import random
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
+from functools import partial
 from typing import Any
 
 from swarmraft.raft import (
@@ -99,7 +100,8 @@ class Cluster:
     checked. ``snapshots``: when nodes snapshot and compact (None: never); ``app_snapshot(i)``
     and ``app_restore(i, snapshot)``: the host's state machine of node i (its encoding at the
     node's applied index, and its restoration); ``storage``: node i's storage (a
-    `MemoryStorage` when None).
+    `MemoryStorage` when None); ``validate(node, entry)``: every node's validator of new
+    entries (`RaftNode`).
     """
 
     def __init__(
@@ -120,6 +122,7 @@ class Cluster:
         app_snapshot: Callable[[int], bytes] | None = None,
         app_restore: Callable[[int, Snapshot], None] | None = None,
         storage: Callable[[int], Storage] | None = None,
+        validate: Callable[[int, Entry], bool] | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("Cluster: n must be >= 1")
@@ -161,6 +164,7 @@ class Cluster:
         self.refused = 0  # proposals a leader refused (ProposalDropped)
         self.delivered: Counter[str] = Counter()
         self.on_apply = on_apply
+        self.validate = validate
         for i in self.ids:
             self._start(i)
         self.loop.after(tick_ms, self._tick_all)
@@ -169,7 +173,8 @@ class Cluster:
     def _start(self, i: int) -> None:
         self._incarnation[i] += 1
         node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + self._incarnation[i])
-        self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng)
+        check = partial(self.validate, i) if self.validate is not None else None
+        self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng, validate=check)
         self._applied[i] = []  # the state machine is volatile: restored from the snapshot, then re-applied
         if self.checker:
             self.checker.restarted(i)
@@ -479,11 +484,21 @@ class Cluster:
         self.network.set_all(loss=p)
 
     # -- application messages -------------------------------------------------------------
-    def send_app(self, frm: int, to: int, handler: Callable[[int, Any], None], payload: Any) -> None:
+    def send_app(
+        self,
+        frm: int,
+        to: int,
+        handler: Callable[[int, Any], None],
+        payload: Any,
+        rng: random.Random | None = None,
+    ) -> None:
         """Send an application message (e.g. a drone's report) over the same network model;
-        ``handler(to, payload)`` runs on delivery if node ``to`` is up."""
-        self.app_sent += 1
-        for d in self.network.delays(self.rng, frm, to):
+        ``handler(to, payload)`` runs on delivery if node ``to`` is up. ``rng``: another
+        generator for this message's loss and delay (traffic that must not shift the draws of
+        the rest of the run, e.g. the report fan-out; not counted in ``app_sent``)."""
+        if rng is None:
+            self.app_sent += 1
+        for d in self.network.delays(rng or self.rng, frm, to):
             self.loop.after(d, self._deliver_app, to, handler, payload)
 
     def _deliver_app(self, to: int, handler: Callable[[int, Any], None], payload: Any) -> None:
@@ -530,6 +545,14 @@ class Cluster:
             return False
         self._process(target)
         return index is not None
+
+    def campaign(self, i: int, force: bool = False) -> None:
+        """Node i starts an election now (`RaftNode.campaign`), if it is up and not paused."""
+        node = self.nodes.get(i)
+        if node is None or i in self._held:
+            return
+        node.campaign(force)
+        self._process(i)
 
     def leader(self) -> int | None:
         """The live, running (not paused) leader of the highest term, or None."""

@@ -111,6 +111,15 @@ class ProtocolTimeConfig(_Strict):
     committee_dead_after_s: float = Field(
         1.0, gt=0, description="a voter the leader has not heard from this long is replaced"
     )
+    audit: bool = Field(True, description="voters audit every record before acknowledging it")
+    censor_k: int = Field(10, ge=0, description="censorship: more than k omissions ...")
+    censor_m: int = Field(20, ge=1, description="... in the last m records of a term")
+
+    @model_validator(mode="after")
+    def _censor(self) -> ProtocolTimeConfig:
+        if self.censor_k >= self.censor_m:
+            raise ValueError(f"censor_k: {self.censor_k} must be below censor_m = {self.censor_m}")
+        return self
 
 
 class SpoofConfig(_Strict):
@@ -132,9 +141,21 @@ class OutageConfig(_Strict):
 
 
 class FaultConfig(_Strict):
-    kind: Literal["crash", "crash-leader", "restart", "pause", "partition", "heal", "loss", "transfer-leader"]
+    kind: Literal[
+        "crash",
+        "crash-leader",
+        "restart",
+        "pause",
+        "partition",
+        "heal",
+        "loss",
+        "transfer-leader",
+        "lying-leader",
+    ]
     at_s: float = Field(ge=0)
     drone: int | None = None
+    mode: Literal["move", "clear", "accuse", "censor"] | None = Field(None, description="lying-leader")
+    offset_m: float | None = Field(None, gt=0, description="lying-leader move: shift east, m")
     groups: list[list[int]] = Field(default_factory=list)
     value: float | None = Field(None, ge=0, le=1, description="loss probability")
     for_s: float | None = Field(None, gt=0, description="pause: how long, s")
@@ -195,8 +216,16 @@ class Scenario(_Strict):
                 raise ValueError(
                     f"fault[{k}].at_s: {f.at_s:g} s is not before the mission's end ({self.duration_s:g} s)"
                 )
-            if f.kind in ("crash", "restart") and f.drone is None:
+            if f.kind in ("crash", "restart", "lying-leader") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
+            if f.kind == "lying-leader" and f.mode is None:
+                raise ValueError(f"fault[{k}].mode: lying-leader needs one of move, clear, accuse, censor")
+            if f.kind != "lying-leader" and f.mode is not None:
+                raise ValueError(f"fault[{k}].mode: only a lying-leader fault has a mode")
+            if f.offset_m is not None and f.mode != "move":
+                raise ValueError(f"fault[{k}].offset_m: only a lying-leader move has an offset")
+            if f.kind == "lying-leader" and not self.protocol.audit:
+                raise ValueError(f"fault[{k}].kind: lying-leader needs protocol.audit = true")
             if f.drone is not None:
                 check([f.drone], f"fault[{k}].drone")
             if f.kind == "partition":
@@ -215,6 +244,8 @@ class Scenario(_Strict):
                 check_size(self.protocol.committee)
             except ValueError as exc:
                 raise ValueError(f"protocol.committee: {exc}") from None
+        if sum(f.kind == "lying-leader" for f in self.fault) > 1:
+            raise ValueError("fault: at most one lying-leader fault")
         if self.raft.heartbeat_tick >= self.raft.election_tick:
             raise ValueError("raft.heartbeat_tick: must be below election_tick")
         try:

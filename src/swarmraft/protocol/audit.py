@@ -1,0 +1,274 @@
+"""The audit of a leader's records (docs/audit.md): before a voter persists and acknowledges
+a record, it checks that the record follows from the evidence the record carries, so a
+lying leader's record never reaches a quorum while honest voters are a majority.
+
+A record passes when
+
+- the leader's signature over the record verifies, and every carried report is for the
+  record's step, from a distinct drone, with a signature that verifies;
+- the detector and its parameters are the swarm's (this drone's configuration), the report
+  digest and the missing flags match the carried reports, and the record's term is its log
+  entry's;
+- the prior is a record this drone holds for that step (audited, proposed or applied), settled,
+  at most PRIOR_STEPS before (a prior this drone never saw is accepted and counted in
+  ``unchecked_priors``: Raft's log matching puts it in the voter's log, but a restarted drone
+  does not re-read its log);
+- re-running the verification (`compute_record`) on the carried reports and prior gives the
+  same flags, missing drones and status exactly, and positions and protection levels within
+  ``POSITION_TOL_M`` (floating point differs between machines; a record is never trusted to
+  more than that).
+
+Censorship: a drone also receives every drone's report directly (the report fan-out). A
+record that leaves out a report this drone held by the step's deadline is an omission of that
+drone's report; a drone whose reports are omitted in more than k of the last m records of the
+same leader term makes this drone treat the leader as faulty (`take_suspicion`), as a refused
+record does. The windows restart with every new term.
+
+Pure logic: the host feeds reports (`note_report`), closes steps at their deadline
+(`close_step`) and starts the forced election.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, compute_record
+from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
+from swarmraft.raft import Entry, EntryKind
+
+if TYPE_CHECKING:
+    from swarmraft.protocol.drone import SwarmDrone
+
+#: m: how far a re-run position (and protection level) may be from the record's. Covers
+#: floating-point differences between machines (last-bit differences in BLAS and libm,
+#: amplified by the estimators' conditioning to well under a micrometre in our missions);
+#: far below any error that matters (the position sigma is 0.1-3 m).
+POSITION_TOL_M = 1e-4
+#: (k, m): a leader is faulty when one drone's reports are omitted in more than k of the
+#: last m records of its term (chosen by `benchmarks/bench_censor.py`, docs/audit.md)
+CENSOR = (10, 20)
+#: steps of reports, records and omissions kept
+KEEP_STEPS = 64
+
+
+def _digest(data: bytes) -> bytes:
+    return hashlib.sha256(data).digest()
+
+
+def _close(a: np.ndarray | None, b: np.ndarray | None, tol: float) -> bool:
+    """Same shape, same nan and inf pattern, finite values within ``tol`` (absolute)."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.shape != b.shape:
+        return False
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    if not np.array_equal(fa, fb):
+        return False
+    same_special = np.array_equal(a[~fa], b[~fb], equal_nan=True)
+    return bool(same_special and np.all(np.abs(a[fa] - b[fb]) <= tol))
+
+
+class Auditor:
+    """One drone's audit: `validate` is its Raft node's validator; `check` the full check of
+    one record (reason None when it passes). ``cache`` (optional, the simulator's): a memo
+    shared by drones of the evidence checks, which depend only on the record's bytes and the
+    swarm's configuration and keys (the same on every drone); each drone still checks the
+    term, the prior and censorship itself."""
+
+    def __init__(
+        self, drone: SwarmDrone, cache: dict | None = None, censor: tuple[int, int] = CENSOR
+    ) -> None:
+        self.drone = drone
+        self.cache = cache
+        self.k, self.m = censor
+        if not 0 <= self.k < self.m:
+            raise ValueError(f"censor: need 0 <= k < m, got k={self.k}, m={self.m}")
+        self.tolerance = POSITION_TOL_M
+        self._passed: OrderedDict[bytes, None] = OrderedDict()
+        self.seen: dict[int, list[StepRecord]] = {}  # step -> records held for it
+        self.refused: list[tuple[int, str]] = []  # (step, reason)
+        self.unchecked_priors = 0
+        # censorship
+        self.timely: dict[int, set[int]] = {}  # step -> drones whose report this drone held
+        self.closed: set[int] = set()
+        self.omissions: dict[int, list[int]] = {}  # drone -> steps its report was left out
+        self.omission_term = -1
+        self.suspicion: str | None = None
+
+    # -- the records this drone holds --------------------------------------------------------
+    def passed(self, data: bytes) -> bool:
+        """Whether this drone already checked ``data`` and it passed."""
+        return _digest(data) in self._passed
+
+    def _hold(self, data: bytes, rec: StepRecord) -> None:
+        self._passed[_digest(data)] = None
+        while len(self._passed) > 4 * KEEP_STEPS:
+            self._passed.popitem(last=False)
+        self.seen.setdefault(rec.step, []).append(rec)
+        for old in [s for s in self.seen if s < rec.step - KEEP_STEPS]:
+            del self.seen[old]
+
+    def proposed(self, data: bytes, rec: StepRecord) -> None:
+        """This drone proposed ``rec`` as leader: it holds it (a prior of later records)."""
+        self._hold(data, rec)
+
+    # -- checks ------------------------------------------------------------------------------
+    def validate(self, entry: Entry) -> bool:
+        """The Raft node's validator: whether ``entry`` may enter this drone's log."""
+        if entry.kind != EntryKind.NORMAL:
+            return True
+        if self.passed(entry.data):
+            return True
+        rec, reason = self.check(entry.data, entry.term)
+        if reason is None and rec is not None:
+            self._censorship(rec)
+        return reason is None
+
+    def check(self, data: bytes, term: int | None = None) -> tuple[StepRecord | None, str | None]:
+        """The record in ``data`` and why it fails (None: it passes; it is then held)."""
+        try:
+            rec = StepRecord.decode(data)
+        except (ValueError, TypeError, IndexError) as exc:
+            return self._refuse(-1, f"undecodable: {exc}")
+        except Exception as exc:  # struct.error, json errors: malformed bytes from a liar
+            return self._refuse(-1, f"undecodable: {type(exc).__name__}")
+        if term is not None and rec.term != term:
+            return self._refuse(rec.step, f"term {rec.term} in an entry of term {term}")
+        reason = self._evidence(data, rec)
+        if reason is None:
+            reason = self._prior(rec)
+        if reason is not None:
+            return self._refuse(rec.step, reason)
+        self._hold(data, rec)
+        return rec, None
+
+    def _refuse(self, step: int, reason: str) -> tuple[None, str]:
+        self.refused.append((step, reason))
+        return None, reason
+
+    def _evidence(self, data: bytes, rec: StepRecord) -> str | None:
+        """The checks that depend only on the bytes (memoised in ``cache``)."""
+        key = _digest(data)
+        if self.cache is not None and key in self.cache:
+            return self.cache[key]
+        reason = self._evidence_uncached(rec, data[: len(data) - len(rec.signature)])
+        if self.cache is not None:
+            self.cache[key] = reason
+        return reason
+
+    def _evidence_uncached(self, rec: StepRecord, body: bytes) -> str | None:
+        """``body``: the signed bytes as received (what the signature covers)."""
+        c, keys = self.drone.config, self.drone.keys
+        if len(rec.faulty) != c.n:
+            return f"{len(rec.faulty)} drones, the swarm has {c.n}"
+        if not keys.verify_bytes(rec.leader, body, rec.signature):
+            return f"leader signature (drone {rec.leader + 1})"
+        if rec.detector != c.detector or rec.params != canonical_params(c.detector_params):
+            return "detector or parameters are not the swarm's"
+        if not rec.reports:
+            return "no reports"
+        drones = [r.drone for r in rec.reports]
+        if drones != sorted(set(drones)) or not 0 <= drones[0] <= drones[-1] < c.n:
+            return "reports out of order, repeated or out of range"
+        for r in rec.reports:
+            if r.step != rec.step:
+                return f"drone {r.drone + 1}'s report is for step {r.step}"
+            if len(r.ranges) != c.n or not keys.verify(r):
+                return f"drone {r.drone + 1}'s report signature"
+        if rec.digest != reports_digest(list(rec.reports)):
+            return "report digest"
+        prior = None
+        if rec.prior_step >= 0:
+            if rec.prior_positions is None or rec.prior_faulty is None:
+                return "prior without positions"
+            prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+        again = compute_record(rec.step, rec.term, {r.drone: r for r in rec.reports}, prior, c)
+        if not np.array_equal(again.missing, rec.missing):
+            return "missing drones differ from the reports"
+        if not np.array_equal(again.faulty, rec.faulty):
+            bad = np.flatnonzero(again.faulty != rec.faulty) + 1
+            return f"flags differ from the re-run (drones {bad.tolist()})"
+        if again.status != rec.status:
+            return f"status {rec.status}, the re-run gives {again.status}"
+        if not _close(again.positions, rec.positions, self.tolerance):
+            return "positions differ from the re-run"
+        if not (_close(again.hpl, rec.hpl, self.tolerance) and _close(again.vpl, rec.vpl, self.tolerance)):
+            return "protection levels differ from the re-run"
+        return None
+
+    def _prior(self, rec: StepRecord) -> str | None:
+        """The prior is a settled record this drone holds, within PRIOR_STEPS."""
+        if rec.prior_step < 0:
+            return None
+        if not rec.step - PRIOR_STEPS <= rec.prior_step < rec.step:
+            return f"prior step {rec.prior_step} outside {PRIOR_STEPS} steps"
+        held = list(self.seen.get(rec.prior_step, []))
+        applied = self.drone.state.records.get(rec.prior_step)
+        if applied is not None:
+            held.append(applied)
+        if not held:
+            self.unchecked_priors += 1
+            return None
+        for h in held:
+            if (
+                h.status not in UNSETTLED
+                and np.array_equal(h.positions, rec.prior_positions, equal_nan=True)
+                and np.array_equal(h.faulty, rec.prior_faulty)
+            ):
+                return None
+        return f"prior step {rec.prior_step} is not a settled record held for it"
+
+    # -- censorship --------------------------------------------------------------------------
+    def note_report(self, report: Report, data: bytes | None = None) -> bool:
+        """A report received directly (the fan-out): held for its step if its signature
+        verifies and the step's deadline has not passed here. ``data``: its bytes, the key
+        of the shared memo (``cache``) of the signature check."""
+        if report.step in self.closed or report.drone in self.timely.get(report.step, ()):
+            return False
+        if self.cache is not None and data is not None:
+            key = b"report" + _digest(data)
+            if key not in self.cache:
+                self.cache[key] = self.drone.keys.verify(report)
+            ok = self.cache[key]
+        else:
+            ok = self.drone.keys.verify(report)
+        if not ok:
+            return False
+        self.timely.setdefault(report.step, set()).add(report.drone)
+        return True
+
+    def close_step(self, step: int) -> None:
+        """Step ``step``'s deadline passed here: reports arriving later are not timely."""
+        self.closed.add(step)
+        for old in [s for s in self.closed if s < step - KEEP_STEPS]:
+            self.closed.discard(old)
+            self.timely.pop(old, None)
+        for old in [s for s in self.timely if s < step - KEEP_STEPS]:
+            del self.timely[old]
+
+    def _censorship(self, rec: StepRecord) -> None:
+        if rec.term != self.omission_term:
+            self.omissions.clear()  # a new leader starts with a clean slate
+            self.omission_term = rec.term
+        carried = {r.drone for r in rec.reports}
+        for d in self.timely.get(rec.step, set()) - carried:
+            steps = self.omissions.setdefault(d, [])
+            steps.append(rec.step)
+            recent = [s for s in steps if s > rec.step - self.m]
+            self.omissions[d] = recent
+            if len(recent) > self.k and self.suspicion is None:
+                self.suspicion = (
+                    f"drone {d + 1}'s reports left out of {len(recent)} of the last {self.m} steps"
+                )
+
+    def take_suspicion(self) -> str | None:
+        """Why this drone now treats its leader as faulty (once), or None."""
+        why, self.suspicion = self.suspicion, None
+        if why is not None:
+            self.omissions.clear()
+        return why

@@ -1,0 +1,313 @@
+"""The audit of a leader's records (issue 14, docs/audit.md): a record that does not follow
+from its signed evidence is refused, a refusing voter deposes its leader, a censoring leader is
+found, honest leaders are never accused, and no honest drone applies a falsified record."""
+
+from __future__ import annotations
+
+import random
+from dataclasses import replace
+from functools import cache
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
+from swarmraft.protocol.audit import POSITION_TOL_M
+from swarmraft.protocol.drone import Prior, compute_record
+from swarmraft.raft import Entry, EntryKind, MemoryStorage, Message, MsgType, RaftConfig, RaftNode
+from swarmraft.sim.mission import run_mission
+from swarmraft.sim.runtime import Cluster
+from swarmraft.sim.scenario import Scenario
+from swarmraft.sim.sensing import ScenarioWorld
+
+N = 9
+
+
+@cache
+def honest_chain(steps: int = 14) -> tuple[ScenarioWorld, Keyring, list[bytes]]:
+    """A leader's sealed records of ``steps`` steps of a 9-drone world (drone 3 spoofed by
+    30 m from 0.5 s), each with the previous one as its prior."""
+    sc = Scenario(
+        name="t",
+        seed=3,
+        drones=N,
+        duration_s=2.0,
+        spoof=[{"kind": "jump", "drones": [3], "start_s": 0.5, "magnitude": 30.0}],
+    )
+    w = ScenarioWorld.build(sc)
+    keys = Keyring.generate(N, np.random.default_rng(0))
+    leader = SwarmDrone(0, w.protocol, keys, audit=True)
+    base_t, base_pos = np.zeros(N), w.traj.positions[0].copy()
+    out = []
+    for k in range(steps):
+        ins = w.ins_estimate(k, base_t, base_pos)
+        ranges = w.measured_ranges(k, ins)
+        for i in range(N):
+            r = SwarmDrone(i, w.protocol, keys).make_report(
+                k, w.fix[k, i], "gnss", ranges[i], w.innovation(k, i)
+            )
+            leader.receive(r)
+        data = leader.seal(leader.verify_step(k, 1))
+        leader.apply(data)
+        out.append(data)
+    return w, keys, out
+
+
+def voter_through(k: int) -> tuple[SwarmDrone, list[bytes], Keyring]:
+    """A voter that checked and applied the chain's records before step k."""
+    w, keys, chain = honest_chain()
+    v = SwarmDrone(1, w.protocol, keys, audit=True)
+    for data in chain[:k]:
+        rec, reason = v.audit.check(data, 1)
+        assert reason is None, reason
+        v.apply(data)
+    return v, chain, keys
+
+
+def resealed(rec: StepRecord, keys: Keyring) -> bytes:
+    """``rec`` signed again by its leader (a lying leader signs its lies)."""
+    body = replace(rec, signature=b"").body()
+    return body + keys.sign_bytes(rec.leader, body)
+
+
+def test_honest_records_pass_and_round_trip() -> None:
+    v, chain, _ = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    assert rec.encode() == chain[12]  # deterministic encoding
+    assert rec.prior_step == 11 and len(rec.reports) == N and rec.faulty[2]
+    assert v.audit.check(chain[12], 1)[1] is None
+    assert v.audit.unchecked_priors == 0
+
+
+@pytest.mark.parametrize(
+    "lie",
+    [
+        "move-1cm",
+        "move-10m",
+        "clear",
+        "accuse",
+        "status",
+        "report-forged",
+        "report-dropped",
+        "leader-signature",
+        "params",
+        "prior-forged",
+        "prior-old",
+        "term",
+    ],
+)
+def test_falsified_records_are_refused(lie: str) -> None:
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    term = 1
+    if lie.startswith("move"):
+        pos = rec.positions.copy()
+        pos[4, 0] += 0.01 if lie == "move-1cm" else 10.0
+        rec = replace(rec, positions=pos)
+    elif lie in ("clear", "accuse"):
+        flags = rec.faulty.copy()
+        flags[2 if lie == "clear" else 5] = lie == "accuse"
+        rec = replace(rec, faulty=flags)
+    elif lie == "status":
+        rec = replace(rec, status="alarm")
+    elif lie == "report-forged":  # a report altered (its drone's signature kept), and the
+        r = rec.reports[4]  # verdict honestly computed from it: only the signature tells
+        forged = replace(r, position=r.position + [5.0, 0, 0])
+        reports = {q.drone: q for q in rec.reports} | {4: forged}
+        prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+        rec = replace(compute_record(12, 1, reports, prior, v.config), leader=rec.leader)
+    elif lie == "report-dropped":  # the record's verdict kept, one of its reports left out
+        rec = replace(rec, reports=rec.reports[:4] + rec.reports[5:])
+    elif lie == "params":
+        rec = replace(rec, params='{"gate":1.0}')
+    elif lie == "prior-forged":
+        pp = rec.prior_positions.copy()
+        pp[4] += 3.0
+        rec = replace(rec, prior_positions=pp)
+    elif lie == "prior-old":
+        rec = replace(rec, prior_step=7)
+    elif lie == "term":
+        term = 2
+    data = resealed(rec, keys)
+    if lie == "leader-signature":
+        data = chain[12][:-64] + bytes(64)
+    got, reason = v.audit.check(data, term)
+    assert got is None and reason is not None
+    assert v.audit.refused[-1][1] == reason
+
+
+def test_tolerance_is_tight() -> None:
+    assert POSITION_TOL_M <= 1e-3  # a record is trusted to a millimetre at the very most
+
+
+def test_learner_refuses_to_apply() -> None:
+    """A drone that never validated a record (a learner) checks it before applying it."""
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    pos = rec.positions.copy()
+    pos[0, 1] += 2.0
+    assert v.apply(resealed(replace(rec, positions=pos), keys)) is None
+    assert v.refused_applies == 1 and v.state.last_step == 11
+    assert v.apply(chain[12]) is not None
+
+
+def test_censorship_windows_restart_with_each_term() -> None:
+    """k = 2 of m = 5: three omissions of one drone's timely report in one term make the
+    leader faulty; omissions under an earlier term do not count against a new one."""
+    w, keys, chain = honest_chain()
+    v = SwarmDrone(1, w.protocol, keys, audit=True, censor=(2, 5))
+    left_out = 6  # drone 7's reports, held by the voter, left out by the leader
+
+    def record(k: int, term: int) -> Entry:
+        rec = StepRecord.decode(chain[k])
+        rec = replace(rec, term=term)
+        v.audit.note_report(next(r for r in rec.reports if r.drone == left_out))
+        kept = tuple(r for r in rec.reports if r.drone != left_out)
+        # the verdict without the drone's report, as an honest leader lacking it computes it
+        prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+        again = compute_record(k, term, {r.drone: r for r in kept}, prior, w.protocol)
+        again = replace(again, leader=0)
+        return Entry(term, k, resealed(again, keys), EntryKind.NORMAL)
+
+    for k in range(1, 3):
+        v.apply(chain[k - 1])
+        assert v.audit.validate(record(k, 1))
+    assert v.audit.take_suspicion() is None  # two omissions: not more than k = 2
+    for k in range(3, 5):  # a new term: the window restarts
+        v.apply(chain[k - 1])
+        assert v.audit.validate(record(k, 2))
+    assert v.audit.take_suspicion() is None
+    v.apply(chain[4])
+    assert v.audit.validate(record(5, 2))
+    why = v.audit.take_suspicion()
+    assert why is not None and "drone 7" in why
+
+
+def test_raft_validator_keeps_the_valid_prefix_and_deposes_the_leader() -> None:
+    """Followers refuse entries b"lie": they acknowledge only the valid prefix, send no
+    reject, count the refusal and start a forced election; the lie never commits."""
+    c = Cluster(5, seed=4, validate=lambda node, e: e.data != b"lie")
+    assert c.run_until(lambda: c.leader() is not None, 3000)
+    lead = c.leader()
+    term = c.status(lead).term
+    c.propose_batch([b"ok1", b"lie", b"ok2"])
+    c.run(1000)
+    assert all(b"lie" not in c.applied(i) for i in c.ids)
+    assert all(c.applied(i)[:1] == [b"ok1"] for i in c.ids)
+    assert sum(c.status(i).refused for i in c.ids) >= 3
+    assert c.leader() is not None and c.status(c.leader()).term > term
+    assert c.messages["MsgVote"] > 0
+
+
+def test_raft_refusal_sends_no_reject() -> None:
+    node = RaftNode(
+        RaftConfig(1, (2, 3)), MemoryStorage(), random.Random(0), validate=lambda e: e.data != b"x"
+    )
+    node.step(Message(MsgType.HEARTBEAT, 2, 1, 1))
+    node.advance(node.ready())
+    good, bad = Entry(1, 1, b"a"), Entry(1, 2, b"x")
+    node.step(Message(MsgType.APP, 2, 1, 1, log_term=0, index=0, entries=(good, bad), commit=0))
+    rd = node.ready()
+    acks = [m for m in rd.messages if m.type == MsgType.APP_RESP]
+    assert len(acks) == 1 and not acks[0].reject and acks[0].index == 1
+    assert [e.data for e in rd.entries] == [b"a"]
+    assert node.status.refused == 1 and node.role == "candidate"
+    assert all(m.force for m in rd.messages if m.type == MsgType.VOTE)
+
+
+def lying(mode: str, seed: int, drones: int = N, duration: float = 6.0) -> Scenario:
+    target = 3 if mode == "clear" else 5
+    return Scenario(
+        name="lie",
+        seed=seed,
+        drones=drones,
+        duration_s=duration,
+        spoof=[{"kind": "jump", "drones": [3], "start_s": 1.0, "magnitude": 30.0}],
+        fault=[{"kind": "lying-leader", "at_s": 2.5, "mode": mode, "drone": target}],
+    )
+
+
+def replaced_at(log, liar: int, after_s: float) -> float:  # noqa: ANN001
+    """The first step time after ``after_s`` at which another drone leads at the deadline."""
+    for k in np.flatnonzero(log.t >= after_s):
+        if log.leader[k] not in (0, liar):
+            return float(log.t[k])
+    return float("inf")
+
+
+@pytest.mark.parametrize("mode", ["move", "clear", "accuse", "censor"])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_lying_leader_is_caught(mode: str, seed: int) -> None:
+    log = run_mission(lying(mode, seed))  # raises if an honest drone applies a falsified record
+    a = log.audit
+    liar = a["liar"]
+    assert liar is not None
+    if mode == "censor":
+        assert a["censorship_findings"] > 0 and a["refused_entries"] == 0
+        start = 2.5
+        assert replaced_at(log, liar, start) - start <= 2.0
+    else:
+        assert a["falsified_proposed"] > 0 and a["refused_entries"] > 0
+        start = a["first_lie_s"]
+        assert replaced_at(log, liar, start) - start <= 1.0
+    end = replaced_at(log, liar, start)
+    skipped = log.t[~log.committed & (log.t > 1.0)]  # after the first election
+    assert not ((skipped < start - 0.1) | (skipped > end)).any()  # skips only in the window
+    assert log.leader[-1] != liar
+
+
+def test_honest_leaders_are_never_accused() -> None:
+    """A mission with spoofing, an outage, a leader crash and 10 % loss: no entry refused, no
+    censorship finding, and the same records as the mission without the audit."""
+    kw = dict(
+        name="honest",
+        seed=5,
+        drones=N,
+        duration_s=6.0,
+        network={"loss": 0.1},
+        spoof=[{"kind": "jump", "drones": [2], "start_s": 1.0, "magnitude": 30.0}],
+        outage=[{"drones": [7], "start_s": 2.0}],
+        fault=[{"kind": "crash-leader", "at_s": 3.0}],
+    )
+    log = run_mission(Scenario(**kw))
+    assert log.audit["refused_entries"] == 0 and log.audit["censorship_findings"] == 0
+    assert log.audit["refused_applies"] == 0
+    off = run_mission(Scenario(**{**kw, "protocol": {"audit": False}}))
+    assert np.array_equal(log.verified, off.verified, equal_nan=True)
+    assert np.array_equal(log.faulty, off.faulty) and np.array_equal(log.leader, off.leader)
+    assert list(log.status) == list(off.status)
+
+
+@pytest.mark.parametrize(
+    ("fault", "field"),
+    [
+        ({"kind": "lying-leader", "at_s": 1.0, "drone": 2}, "fault[0].mode"),
+        ({"kind": "lying-leader", "at_s": 1.0, "mode": "move"}, "fault[0].drone"),
+        ({"kind": "crash", "at_s": 1.0, "drone": 2, "mode": "move"}, "fault[0].mode"),
+        (
+            {"kind": "lying-leader", "at_s": 1.0, "drone": 2, "mode": "clear", "offset_m": 3},
+            "fault[0].offset_m",
+        ),
+        ({"kind": "lying-leader", "at_s": 1.0, "drone": 2, "mode": "bend"}, "mode"),
+    ],
+)
+def test_lying_leader_bad_input_is_one_line(fault: dict, field: str) -> None:
+    with pytest.raises(ValidationError) as exc:
+        Scenario(drones=5, duration_s=3.0, fault=[fault])
+    assert field in str(exc.value)
+
+
+@pytest.mark.parametrize("name", ["paper-recovery-6-2", "packet-loss-20"])
+def test_shipped_scenarios_never_accuse_their_leaders(name: str) -> None:
+    """A sample of `accept_audit.py honest`: shipped scenarios (the first 8 s) on two seeds."""
+    import tomllib
+
+    from swarmraft.sim.scenario import shipped_scenarios
+
+    data = tomllib.loads(shipped_scenarios()[name].read_text())
+    data["duration_s"] = min(data.get("duration_s", 60.0), 8.0)
+    for seed in (1, 2):
+        log = run_mission(Scenario(**{**data, "seed": seed}))
+        assert log.audit["refused_entries"] == 0 and log.audit["censorship_findings"] == 0
+        assert log.audit["refused_applies"] == 0 and log.committed.sum() > 0

@@ -302,7 +302,8 @@ def assess(
         ill |= evj[..., 2] > 1e6 * np.maximum(ev[:, None, :, 2], 1e-300)
         unverifiable[s] |= (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
         var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
-        var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
+        with np.errstate(invalid="ignore"):  # inf - inf (a drone unfixed either way): nan, never separated
+            var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
         thr = k_fa[s, None, None, None] * np.sqrt(var_ss)
         live = tr[:, :, None, None]
         fixed = ~undetermined[s][:, None, :, None]

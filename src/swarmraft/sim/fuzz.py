@@ -140,6 +140,9 @@ def run_seed(seed: int, cfg: FuzzConfig | None = None) -> FuzzResult:
     n = cfg.nodes if cfg.nodes is not None else rng.randint(3, 5 if heavy else 7)
     loss = cfg.loss if cfg.loss is not None else rng.uniform(0.0, 0.3)
     per_msg = cfg.max_entries_per_msg or (rng.randint(1, 4) if rng.random() < 0.8 else 64)
+    # half the two-entry seeds send one entry per append (own generator: other draws as before)
+    if not cfg.max_entries_per_msg and per_msg == 2 and random.Random(seed * 7919 + 41).random() < 0.5:
+        per_msg = 1
     inflight = rng.choice((1, 2, 8)) if rng.random() < 0.5 else 256
     pre_vote = cfg.pre_vote if cfg.pre_vote is not None else rng.random() < 0.5
     check_quorum = cfg.check_quorum if cfg.check_quorum is not None else rng.random() < 0.5

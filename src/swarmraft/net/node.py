@@ -780,7 +780,7 @@ class DroneHost:
             self._restore(entry)
             return
         self._applied_index = entry.index
-        if entry.kind == EntryKind.NOOP:
+        if entry.kind != EntryKind.NORMAL:  # a no-op, or a membership change: no record
             return
         before = self.drone.state.last_step
         rec = self.drone.apply(entry.data)

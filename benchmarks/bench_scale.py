@@ -23,7 +23,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from swarmraft.cli.missions import mission_figures
+from swarmraft.estimation.registry import one_line
 from swarmraft.experiments.mission import error_series, write_results
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.scenario import Scenario
@@ -43,15 +46,20 @@ def main() -> None:
     ap.add_argument("--committee", type=int, default=5, help="voters (odd, <= 7); 0: every drone")
     ap.add_argument("--detector", default="joint")
     args = ap.parse_args()
-    sc = Scenario(
-        name=f"scale-{args.drones}",
-        drones=args.drones,
-        duration_s=args.seconds,
-        seed=1,
-        spoof=[{"kind": "jump", "drones": [3, 9, 17], "start_s": args.seconds / 6, "magnitude": 40}],
-        fault=[{"kind": "crash-leader", "at_s": args.seconds / 2}],
-        protocol={"committee": args.committee, "detector": args.detector},
-    )
+    if args.drones < 17:
+        ap.error("--drones: at least 17 (drones 3, 9 and 17 are spoofed)")
+    try:
+        sc = Scenario(
+            name=f"scale-{args.drones}",
+            drones=args.drones,
+            duration_s=args.seconds,
+            seed=1,
+            spoof=[{"kind": "jump", "drones": [3, 9, 17], "start_s": args.seconds / 6, "magnitude": 40}],
+            fault=[{"kind": "crash-leader", "at_s": args.seconds / 2}],
+            protocol={"committee": args.committee, "detector": args.detector},
+        )
+    except ValidationError as exc:
+        ap.error(one_line(exc, ""))
     run_mission(Scenario(drones=5, duration_s=0.5, seed=1))  # warm-up (numba, imports)
     phases: list[tuple[str, float, float]] = []
 

@@ -143,6 +143,7 @@ def test_raft_fuzz_needs_3_nodes(cwd):
         ("[motion]\nwaypoints = [[0, 0, 0]]\n", "motion.waypoints: give at least 2 waypoints"),
         ("[network]\ndelay_ms = [5, 1]\n", "network.delay_ms: low 5 ms is above high 1 ms"),
         ("[protocol]\ncommittee = 4\n", "protocol.committee: committee size must be odd and in 1..7, got 4"),
+        ("[protocol]\ncensor_k = 30\n", "protocol.censor_k: 30 must be below censor_m = 20"),
         (
             '[[spoof]]\nkind = "collusion"\ndrones = [2]\nstart_s = 0.2\npivots = [2]\n',
             "spoof[0].pivots: a pivot is an honest drone, and 2 is spoofed",

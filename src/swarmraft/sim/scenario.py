@@ -115,12 +115,6 @@ class ProtocolTimeConfig(_Strict):
     censor_k: int = Field(10, ge=0, description="censorship: more than k omissions ...")
     censor_m: int = Field(20, ge=1, description="... in the last m records of a term")
 
-    @model_validator(mode="after")
-    def _censor(self) -> ProtocolTimeConfig:
-        if self.censor_k >= self.censor_m:
-            raise ValueError(f"censor_k: {self.censor_k} must be below censor_m = {self.censor_m}")
-        return self
-
 
 class SpoofConfig(_Strict):
     kind: Literal["jump", "drag", "area", "collusion"]
@@ -239,6 +233,9 @@ class Scenario(_Strict):
                 raise ValueError(f"fault[{k}].for_s: pause needs a duration")
             if f.kind != "pause" and f.for_s is not None:
                 raise ValueError(f"fault[{k}].for_s: only a pause has a duration")
+        k, m = self.protocol.censor_k, self.protocol.censor_m
+        if k >= m:
+            raise ValueError(f"protocol.censor_k: {k} must be below censor_m = {m}")
         if self.protocol.committee:
             try:
                 check_size(self.protocol.committee)

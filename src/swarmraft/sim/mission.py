@@ -14,6 +14,7 @@ import numpy as np
 
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.committee import initial_committee, next_change
+from swarmraft.protocol.drone import RecordMemo
 from swarmraft.raft import Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.network import LinkModel
@@ -182,6 +183,9 @@ class Mission:
         self.keys = Keyring.generate(n, w.rng_keys)
         # the evidence checks depend only on a record's bytes: drones share them (docs/audit.md)
         self._audit_cache: dict = {}
+        # and a record's verification is a pure function of its inputs: the leader's and the
+        # auditors' re-runs of it are one computation (protocol.drone.RecordMemo)
+        self._record_memo = RecordMemo()
         self.drones = [self._new_drone(i) for i in range(n)]
         # the report fan-out's own generator: it must not shift the draws of the rest of the run
         self._fan_rng = random.Random(sc.seed * 7_919 + 17)
@@ -210,6 +214,7 @@ class Mission:
             audit=self.auditing,
             recompute_cache=self._audit_cache,
             censor=(sc.protocol.censor_k, sc.protocol.censor_m),
+            record_memo=self._record_memo if self.auditing else None,
         )
 
     # -- sensing and reporting --------------------------------------------------------------
@@ -256,11 +261,12 @@ class Mission:
             self.cluster.send_app(node, lead, self._receive, report.encode())
 
     def _fan_out(self, node: int, report: Report) -> None:
-        """The report to every other drone but the leader it went to (the audit's censorship
-        check), on the fan-out's own generator."""
+        """The report to every voter (in the sender's view of the configuration) but itself
+        and the leader it went to (the audit's censorship check: only voters can depose a
+        leader; with a committee, learners get no copy), on the fan-out's own generator."""
         data = report.encode()
         self.drones[node - 1].audit.note_report(report)
-        for j in self.cluster.ids:
+        for j in self.cluster.nodes[node].conf_state.voters:
             if j != node and j != self.sent_to.get(node):
                 self.cluster.send_app(node, j, self._fanned, data, rng=self._fan_rng)
 

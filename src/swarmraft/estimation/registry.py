@@ -15,6 +15,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from swarmraft.estimation.blas import one_blas_thread
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
 DetectorFn = Callable[[SnapshotBatch, Any], VerdictBatch]
@@ -83,7 +84,8 @@ def detector_params(name: str, **params: Any) -> BaseModel:
 
 def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
     p = detector_params(detector, **params)
-    return get_detector(detector).run(batch, p)
+    with one_blas_thread():
+        return get_detector(detector).run(batch, p)
 
 
 def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:

@@ -33,6 +33,7 @@ def mission_figures(result, out: Path) -> list[Path]:
     from swarmraft.experiments.mission import judged
 
     wrong = judged(log) & (log.faulty != log.spoofed)
+    up = log.alive & log.in_swarm()  # a drone outside the swarm is drawn as one that is down
     return [
         vm.error_over_time(
             log.t,
@@ -42,7 +43,7 @@ def mission_figures(result, out: Path) -> list[Path]:
             log.events,
             fig_dir / "error_over_time.png",
             sc.name,
-            alive=log.alive,
+            alive=up,
             wrong=wrong,
         ),
         vm.swarm_maps(
@@ -55,7 +56,7 @@ def mission_figures(result, out: Path) -> list[Path]:
             fig_dir / "swarm_maps.png",
             spoofed=log.spoofed,
             outage=log.outage,
-            alive=log.alive,
+            alive=up,
         ),
         vm.consensus_latency(log.t, log.latency_ms, log.events, fig_dir / "consensus_latency.png"),
         vm.messages_per_step(

@@ -137,9 +137,9 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
 
 def judged(log: MissionLog) -> np.ndarray:
     """(S, n) bool: the drone's flag in the step's record can be judged: the step has a
-    record, the drone is in the swarm and alive and its report reached the leader (a silent
-    drone is placed from ranges and neither flagged nor cleared)."""
-    return log.committed[:, None] & log.alive & ~log.missing & log.in_swarm()
+    record, the drone is alive and its report reached the leader (a silent drone is placed
+    from ranges and neither flagged nor cleared; a drone outside the swarm sends none)."""
+    return log.committed[:, None] & log.alive & ~log.missing
 
 
 def wrong_partition(log: MissionLog) -> np.ndarray:

@@ -211,7 +211,7 @@ def print_mission_summary(summary: dict) -> None:
     required=True,
     type=click.Path(dir_okay=False, path_type=Path),
     help="scenario TOML file, or the name of a shipped one: demo, drag-off, jammed-drone, "
-    "leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
+    "join-leave, leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
 )
 @click.option("--out", type=OutFolder(), help="output folder [results/<name>]")
 @click.option("--seed", type=int, help="override the scenario's seed")

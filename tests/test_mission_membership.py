@@ -69,6 +69,10 @@ def test_the_joiner_becomes_a_learner_catches_up_and_applies_every_record(commit
     assert all(first[k] == d for k, d in mine.items())
     assert len(set(mine) & set(after)) >= 0.8 * len(after)
     assert summary["records_identical_on_all_nodes"]
+    # the joiner audits every record it applies (old ones too) and refuses none; nobody
+    # refuses an entry or suspects censorship
+    assert log.audit["refused_applies"] == log.audit["refused_entries"] == 0
+    assert log.audit["censorship_findings"] == 0
     # and its replicated state ends as drone 1's: the same last step and records
     a, b = m.drones[9].state, m.drones[0].state
     assert a.last_step == b.last_step == max(after)

@@ -223,3 +223,50 @@ def test_a_join_and_leave_scenario_is_valid():
         {"kind": "leave", "at_s": 5, "drone": 1},
     )
     assert sc.joiners == {6} and sc.dynamic
+
+
+def test_a_leaving_leader_that_is_the_only_voter_has_a_learner_promoted_first():
+    """A committee of one: nobody to hand over to until a learner is promoted."""
+    sc = Scenario(
+        drones=5,
+        duration_s=4,
+        seed=2,
+        protocol={"committee": 1},
+        fault=[{"kind": "leave", "at_s": 2, "drone": 1}],
+    )
+    m = Mission(sc)
+    log = m.run()
+    assert [e for t, e in log.events if t >= 2] == [
+        "drone 1 leaves the swarm",
+        "committee: promote drone 2",
+        "leader 1 hands over to drone 2 (it leaves the swarm)",
+        "committee: remove drone 1",
+        "drone 1 left: its removal is committed",
+    ]
+    assert m.cluster.nodes[m.cluster.leader()].conf_state.voters == (2,)
+    assert log.committed[5:-1].all()
+
+
+def test_a_crashed_joiner_restarts_a_member_and_a_crashed_leaver_is_let_go():
+    sc = Scenario(
+        drones=6,
+        duration_s=5,
+        seed=4,
+        protocol={"committee": 3},
+        network={"loss": 0.05},
+        fault=[
+            {"kind": "join", "at_s": 1, "drone": 6},
+            {"kind": "crash", "at_s": 1.5, "drone": 2},
+            {"kind": "crash", "at_s": 2, "drone": 6},
+            {"kind": "restart", "at_s": 2.5, "drone": 6},
+            {"kind": "leave", "at_s": 3, "drone": 2},
+        ],
+    )
+    m = Mission(sc)
+    log = m.run()
+    summary = summarize(log, error_series(log))
+    conf = m.cluster.nodes[m.cluster.leader()].conf_state
+    assert 2 not in conf.members and 6 in conf.members and len(conf.voters) == 3
+    assert 2 in m.left and not m.cluster.alive(2)
+    assert summary["records_identical_on_all_nodes"]
+    assert max(k for k, _ in log.node_records[6]) == len(log.t) - 1  # back and up to date

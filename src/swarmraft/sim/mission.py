@@ -370,9 +370,13 @@ class Mission:
         if self._leaving:
             self._shut_down_removed(node)
             if lead in self._leaving:
-                if node.lead_transferee is None:
+                # it hands over to a live voter that stays; with none yet (a committee of one)
+                # the rule below promotes a learner first
+                if node.lead_transferee is not None:
+                    return
+                if any(v != lead and v not in self._leaving and c.alive(v) for v in conf.voters):
                     self.log.events.append((now / 1000, self._transfer(None, leaving=True)))
-                return
+                    return
         caught_up = [lr for lr in conf.learners if lr in node.prs and node.prs[lr].match + gap >= last]
         silent = {i: (now - t) / 1000 for i, t in self._heard.items()}
         pc = self.sc.protocol

@@ -113,6 +113,8 @@ def test_drones_outside_the_swarm_count_in_no_metric(committee_mission):
     for name, e in errors.items():
         assert np.isnan(e[out]).all(), name
     assert not judged(log)[out].any()
+    # the bound of the drones in the swarm is that of the swarm they are in: finite throughout
+    assert np.isfinite(errors["snapshot_bound"][log.member]).all()
     # no record is degenerate or worse for want of a drone outside the swarm
     assert (log.status[log.committed] == "ok").mean() > 0.9, summary["integrity"]
     # a departed drone's receiver running wild after it left changes no number

@@ -43,8 +43,9 @@ def mission_figures(result, out: Path) -> list[Path]:
             log.events,
             fig_dir / "error_over_time.png",
             sc.name,
-            alive=up,
+            alive=log.alive,
             wrong=wrong,
+            member=log.member,
         ),
         vm.swarm_maps(
             log.truth,

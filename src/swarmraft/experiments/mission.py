@@ -114,18 +114,20 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
         e = np.linalg.norm(x - log.truth, axis=2)
         return e if log.member is None else np.where(member, e, np.nan)
 
-    trusted = ~log.spoofed & ~log.outage & log.alive & member
-    measured = np.ones((len(log.t), sc.drones, sc.drones), dtype=bool)
-    if log.member is not None:  # no ranges with a drone outside the swarm
-        measured &= member[:, :, None] & member[:, None, :]
+    trusted = ~log.spoofed & ~log.outage & log.alive
     bound = np.full(log.spoofed.shape, np.nan)
     if sc.ranging.sigma > 0 and sc.gnss.sigma_h > 0 and sc.gnss.sigma_v > 0:
-        C = swarm_crb(
-            log.truth, trusted, measured, gnss_covariance(sc.gnss.sigma_h, sc.gnss.sigma_v), sc.ranging.sigma
-        )
-        bound = np.sqrt(np.trace(C, axis1=2, axis2=3))
-        if log.member is not None:
-            bound = np.where(member, bound, np.nan)
+        cov = gnss_covariance(sc.gnss.sigma_h, sc.gnss.sigma_v)
+        # the swarm of each step: every drone, or (drones joining and leaving) the drones in
+        # it, one bound per distinct swarm
+        swarms = [np.ones(sc.drones, bool)] if log.member is None else np.unique(member, axis=0)
+        for swarm in swarms:
+            rows = np.flatnonzero((member == swarm).all(axis=1))
+            idx = np.flatnonzero(swarm)
+            measured = np.ones((len(rows), idx.size, idx.size), dtype=bool)
+            sub = np.ix_(rows, idx)
+            C = swarm_crb(log.truth[sub], trusted[sub], measured, cov, sc.ranging.sigma)
+            bound[sub] = np.sqrt(np.trace(C, axis1=2, axis2=3))
     return {
         "gnss": err(log.gnss),
         "ins_alone": err(log.ins_alone),

@@ -212,6 +212,10 @@ class SwarmDrone:
         self.last_seen[report.drone] = max(self.last_seen.get(report.drone, -1), report.step)
         return True
 
+    def forget(self, drone: int) -> None:
+        """Drone ``drone`` (index) left the swarm: `has_all` no longer waits for its reports."""
+        self.last_seen.pop(drone, None)
+
     def has_all(self, step: int, recent: int = 10) -> bool:
         """Whether every drone heard from in the last ``recent`` steps has reported for
         ``step`` (a silent drone does not hold the step up beyond its first deadlines)."""
@@ -377,16 +381,20 @@ def compute_record(
         if trusted.sum() >= 4:
             start = np.where(present[:, None], reported, np.nanmean(reported[trusted], axis=0))
             cov = gnss_covariance(*c.gnss_sigma)
-            est, st = trusted_estimate(
-                start[None],
-                ranges[None],
-                trusted[None],
+            # A drone nobody heard (no report, no range to it: one outside the swarm) is not
+            # part of the step: not placed, and its missing geometry makes no record degenerate.
+            h = np.flatnonzero(present | np.isfinite(ranges[present]).any(axis=0))
+            est_h, st = trusted_estimate(
+                start[h][None],
+                ranges[np.ix_(h, h)][None],
+                trusted[h][None],
                 cov,
                 c.range_sigma,
-                prior=prior[None],
+                prior=prior[h][None],
                 prior_sigma=c.prior_sigma,
             )
-            est = est[0]
+            est = np.full((n, 3), np.nan)
+            est[h] = est_h[0]
             gate_chi2 = c.innovation_gate or 25.9
             disagree = np.sum((reported - est) ** 2 / np.diag(cov), axis=1) > gate_chi2
             faulty |= carry & disagree

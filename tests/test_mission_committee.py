@@ -74,3 +74,13 @@ def test_a_crashed_voter_is_replaced_by_a_learner_within_two_seconds(committee_m
 def test_committee_size_is_odd_and_at_most_7(size):
     with pytest.raises(ValidationError, match=r"protocol\.committee: committee size must be odd"):
         Scenario(drones=11, protocol={"committee": size})
+
+
+def test_drones_share_one_decoded_copy_of_each_record(committee_mission):
+    """Memory at scale: every drone keeps its newest records (and their n signed reports);
+    in the simulator they share one decoded copy (protocol.drone.RecordMemo.decode)."""
+    m, log, summary = committee_mission
+    live = [d for d in m.drones if d.state.records]
+    last = min(max(d.state.records) for d in live)
+    held = [d.state.records[last] for d in live if last in d.state.records]
+    assert len(held) >= 8 and all(r is held[0] for r in held)

@@ -132,7 +132,7 @@ class Auditor:
     def check(self, data: bytes, term: int | None = None) -> tuple[StepRecord | None, str | None]:
         """The record in ``data`` and why it fails (None: it passes; it is then held)."""
         try:
-            rec = StepRecord.decode(data)
+            rec = self.drone.decode(data)
         except (ValueError, TypeError, IndexError) as exc:
             return self._refuse(-1, f"undecodable: {exc}")
         except Exception as exc:  # struct.error, json errors: malformed bytes from a liar

@@ -64,6 +64,9 @@ class RangingConfig(_Strict):
     max_range: float | None = Field(None, gt=0, description="no range beyond, m")
     nlos_prob: float = Field(0.0, ge=0, le=1)
     nlos_bias: tuple[float, float] = (0.3, 1.0)
+    nlos_mode: Literal["link", "direction"] = Field(
+        "link", description="NLOS bias drawn per link (both directions share it) or per direction"
+    )
     symmetric: bool = False
     shadowing_db: float = Field(6.0, ge=0, description="RSSI shadowing, dB")
     exponent: float = Field(2.5, gt=0, description="RSSI path-loss exponent")
@@ -72,7 +75,9 @@ class RangingConfig(_Strict):
         if self.kind == "exact":
             return ExactRanging(self.max_range)
         if self.kind == "uwb":
-            return UWBRanging(self.sigma, self.max_range, self.nlos_prob, self.nlos_bias, self.symmetric)
+            return UWBRanging(
+                self.sigma, self.max_range, self.nlos_prob, self.nlos_bias, self.symmetric, self.nlos_mode
+            )
         return RSSIRanging(self.shadowing_db, self.exponent, self.max_range, self.symmetric)
 
     @property

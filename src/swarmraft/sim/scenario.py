@@ -77,6 +77,9 @@ class RangingTimeConfig(_Strict):
     sigma: float = Field(0.10, ge=0)
     max_range: float | None = Field(None, gt=0)
     nlos_prob: float = Field(0.0, ge=0, le=1)
+    nlos_mode: Literal["link", "direction"] = Field(
+        "link", description="NLOS bias drawn per link (both directions share it) or per direction"
+    )
 
 
 class NetworkConfig(_Strict):

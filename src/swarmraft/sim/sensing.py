@@ -80,7 +80,9 @@ class ScenarioWorld:
         ]
         outages = [Outage(tuple(d - 1 for d in o.drones), o.start_s, o.end_s) for o in sc.outage]
         timeline = AttackTimeline.build(rng_att, spoofs, outages)
-        uwb = UWBRanging(sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob)
+        uwb = UWBRanging(
+            sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob, nlos_mode=sc.ranging.nlos_mode
+        )
         # In step order, as the simulator draws them (an area spoof fixes its point at its first step).
         fix, has_fix, spoofed = np.empty((S, n, 3)), np.empty((S, n), bool), np.empty((S, n), bool)
         ranges = np.empty((S, n, n))

@@ -15,6 +15,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from swarmraft.estimation.links import run_screened
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
 DetectorFn = Callable[[SnapshotBatch, Any], VerdictBatch]
@@ -82,8 +83,10 @@ def detector_params(name: str, **params: Any) -> BaseModel:
 
 
 def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
+    """Verify a batch with a registered detector, on ranges screened for bad links first
+    where its parameters ask for it (`links.run_screened`)."""
     p = detector_params(detector, **params)
-    return get_detector(detector).run(batch, p)
+    return run_screened(get_detector(detector).run, batch, p)
 
 
 def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:

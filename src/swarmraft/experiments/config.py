@@ -15,6 +15,7 @@ from swarmraft.estimation.registry import detector_params, one_line
 from swarmraft.world import (
     AreaSpoof,
     Attack,
+    DistanceEnlargement,
     ExactRanging,
     GNSSModel,
     Jump,
@@ -33,6 +34,8 @@ ATTACKS = (
     "collusion-2",
     "collusion-3",
     "area",
+    "enlarge",
+    "enlarge-jump",
 )
 
 
@@ -89,7 +92,9 @@ class AttackConfig(_Strict):
     """Which attack and its parameters. ``jump``: independent jumps (``box`` half width or
     ``shell`` low-high magnitude); ``range-tamper``: jumps plus ranges consistent with the
     fake reports; ``range-bias``: jumps plus a bias on the attackers' ranges;
-    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point."""
+    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point;
+    ``enlarge``: distance enlargement of ``enlarge_low``-``enlarge_high`` m per attacker (every
+    range it takes part in reads long), its GNSS honest; ``enlarge-jump``: the same plus jumps."""
 
     name: Literal[ATTACKS] = "jump"  # type: ignore[valid-type]
     jump: Literal["box", "shell"] = "box"
@@ -98,11 +103,15 @@ class AttackConfig(_Strict):
     high: float = Field(100.0, ge=0)
     bias: float = 5.0
     angle_deg: tuple[float, float] = (20.0, 90.0)
+    enlarge_low: float = Field(2.0, ge=0, description="distance enlargement per attacker, low end, m")
+    enlarge_high: float = Field(10.0, ge=0, description="distance enlargement per attacker, high end, m")
 
     @model_validator(mode="after")
     def _order(self) -> AttackConfig:
         if self.high < self.low:
             raise ValueError("high must be >= low")
+        if self.enlarge_high < self.enlarge_low:
+            raise ValueError("enlarge_high must be >= enlarge_low")
         return self
 
     def model(self) -> Attack:
@@ -115,6 +124,9 @@ class AttackConfig(_Strict):
             return Attack(jump, RangeTamper("bias", self.bias))
         if self.name == "area":
             return Attack(AreaSpoof(self.low, self.high))
+        if self.name.startswith("enlarge"):
+            delay = DistanceEnlargement(self.enlarge_low, self.enlarge_high)
+            return Attack(jump if self.name == "enlarge-jump" else None, enlargement=delay)
         return Attack(RigidCollusion(int(self.name[-1]), self.angle_deg))  # type: ignore[arg-type]
 
     @property

@@ -11,7 +11,6 @@ import numpy as np
 
 from swarmraft.world.geometry import true_distances
 
-
 NLOS_MODES = ("link", "direction")
 
 

@@ -13,11 +13,13 @@ the ranges alone, without any GNSS report (so no position spoof can steer it), a
 2. Links. The swarm's shape from the ranges alone: classical MDS of the largest set of drones
    with every pair measured, the others placed by closed-form multilateration, then
    Levenberg-Marquardt on every range measured by a drone that step 1 did not single out.
-   Where nothing reads long beyond ``k`` sigma, the screening stops here and changes nothing.
-   Otherwise range faults only lengthen (NLOS, a delayed reply), so the shape is fitted again
-   by graduated non-convexity with a one-sided Geman-McClure loss (a range reading short is
-   noise; one reading long loses its weight), and the ranges still reading long beyond
-   ``K_LOW`` = 3 sigma (the range itself, or its link's mean of both directions) are dropped.
+   Where nothing reads long beyond ``k`` sigma and step 1 dropped nothing, the screening
+   stops here and changes nothing. Otherwise the links whose two ways disagree beyond
+   ``K_LOW`` sqrt(2) sigma are dropped too and, as range faults only lengthen (NLOS, a
+   delayed reply), the shape is fitted again by graduated non-convexity with a one-sided
+   Geman-McClure loss (a range reading short is noise; one reading long loses its weight);
+   the ranges still reading long beyond ``K_LOW`` = 3 sigma (the range itself, or its
+   link's mean of both directions) are dropped.
 3. Distance enlargement. A drone that delays its replies lengthens all its links by one
    amount delta. For each drone, its position and a common delta are fitted to its links
    with the other drones where step 2 put them (the pseudorange problem: position and clock
@@ -272,8 +274,9 @@ def screen(
     tampering = most & (disagree & (gap > nlos_max)).any(axis=2)
     culprit = tampering[:, :, None] | tampering[:, None, :]
     dropped = disagree & ~culprit
-    # step 2: fit the shape to the ranges the screening trusts; where a link reads long,
-    # fit it again with a one-sided robust loss and drop the links reading long
+    # step 2: fit the shape to the ranges the screening trusts; where a link reads long (or
+    # two ways disagree), drop the two-way disagreements beyond K_LOW too, fit again with a
+    # one-sided robust loss and drop the ranges reading long
     base = (meas & ~dropped & ~tampering[:, :, None]).astype(float)
     linked = (base > 0) | (np.swapaxes(base, 1, 2) > 0)
     x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan)), ranges, base, sigma)
@@ -281,9 +284,13 @@ def screen(
     long_ = np.zeros((T, n, n), dtype=bool)
     enlarged = np.zeros((T, n), dtype=bool)
     delta = np.zeros((T, n))
-    rows = np.flatnonzero(z.max(axis=(1, 2)) > k)
+    rows = np.flatnonzero((z.max(axis=(1, 2)) > k) | dropped.any(axis=(1, 2)))
     if rows.size:
-        x[rows], long_[rows] = _one_sided(x[rows], ranges[rows], base[rows], z[rows], sigma, rounds)
+        loose = both[rows] & (gap[rows] > min(k, K_LOW) * np.sqrt(2) * sigma) & ~culprit[rows]
+        dropped[rows] |= loose
+        base[rows] = np.where(loose, 0.0, base[rows])
+        z = _long_z(x[rows], ranges[rows], base[rows], sigma)
+        x[rows], long_[rows] = _one_sided(x[rows], ranges[rows], base[rows], z, sigma, rounds)
     # step 3: where something reads long, the drone whose links a common enlargement explains
     # best is taken as enlarged, its ranges corrected, the shape fitted again, and so on
     go = rows

@@ -67,6 +67,12 @@ def test_screen_drops_one_nlos_link_per_link_and_per_direction(rng):
     one[0, 3, 9] += 0.5  # one direction only
     s = screen(one, 0.01)
     assert s.dropped[0, 3, 9] and s.dropped.sum() <= 2 and not s.enlarged.any()
+    # a link reading short is no NLOS (a path is never shorter than the straight line): the
+    # screening leaves it to the detectors
+    short = noisy.copy()
+    short[0, 2, 7] -= 0.5
+    short[0, 7, 2] -= 0.5
+    assert not screen(short, 0.01).dropped[0, 2, 7]
     # clean ranges: nothing found, nothing changed
     s = screen(noisy, 0.01)
     assert not s.changed and np.array_equal(s.ranges, noisy, equal_nan=True)

@@ -175,3 +175,29 @@ def test_enlargement_in_a_mission_reaches_the_ranges():
     np.testing.assert_allclose(w.fix[15, 1], honest)  # its GNSS stays honest
     with pytest.raises(ValueError, match="enlarge"):
         Scenario(drones=6, spoof=[{"kind": "enlarge", "drones": [2], "start_s": 1.0}])
+
+
+def test_compare_and_curves_take_the_enlargement(tmp_path):
+    from click.testing import CliRunner
+
+    from swarmraft.cli import main
+    from swarmraft.experiments.tables import read_table
+
+    common = ["--n", "11", "--f", "2", "--detectors", "joint"]
+    r = CliRunner().invoke(
+        main,
+        ["compare", "--attacks", "enlarge", "--trials", "20", "--workers", "1", "--out", str(tmp_path / "c")]
+        + common,
+    )
+    assert r.exit_code == 0, r.output
+    t = read_table(tmp_path / "c" / "compare.csv")
+    assert list(t["attack"]) == ["enlarge"] and t["detection_rate"][0] >= 0.7
+    r = CliRunner().invoke(
+        main,
+        ["curves", "--attack", "enlarge", "--trials", "10", "--offsets", "0.2,6"]
+        + ["--out", str(tmp_path / "k"), *common],
+    )
+    assert r.exit_code == 0, r.output
+    c = read_table(tmp_path / "k" / "curves.csv")
+    pd = {o: p for k, o, p in zip(c["kind"], c["offset"], c["detection"], strict=True) if k == "offset"}
+    assert pd[6.0] > pd[0.2]  # 6 m of enlargement is seen, 0.2 m (2 sigma) hardly

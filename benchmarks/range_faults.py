@@ -10,10 +10,13 @@ honest, or with ``--jump`` also spoofed 10-100 m): per detector the share of att
 the share of trials with every attacker flagged, and the share of honest drones flagged.
 Target: attackers flagged >= 0.9.
 
+``--links off`` runs the detectors without the range screening (as before it existed);
+``--links screen`` turns it on for ``paper`` too (off by default there).
+
 The realistic preset (GNSS 1.5/3 m, UWB 0.10 m, 100 m cube), paper's thresholds calibrated as
 a sweep does. Run:
     .venv/bin/python benchmarks/range_faults.py nlos [--trials 1000] [--n 13] [--nlos 0.2]
-    .venv/bin/python benchmarks/range_faults.py enlarge [--trials 1000] [--n 11] [--f 2]
+    .venv/bin/python benchmarks/range_faults.py enlarge [--trials 1000] [--n 11] [--f 2] [--jump]
 """
 
 from __future__ import annotations
@@ -31,10 +34,12 @@ from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
 DETECTORS = ("paper", "clique", "fde", "joint")
 
 
-def _run(config, n: int, f: int, det: str, chunk: int):
+def _run(config, n: int, f: int, det: str, chunk: int, links: str | None = None):
     cfg = config.model_copy(update={"detector": det})
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, n, f, chunk)), cfg.trials, n, f)
     params, _ = detector_settings(cfg, n)
+    if links is not None:
+        params["links"] = links
     t0 = time.perf_counter()
     v = verify_batch(snapshot_batch(cfg, d), det, **params)
     return d, v, time.perf_counter() - t0
@@ -53,7 +58,7 @@ def nlos(args: argparse.Namespace) -> None:
                 "realistic", n=(args.n,), trials=args.trials, seed=args.seed, ranging=ranging
             )
             # chunk 1: f = 0, chunk 0 is the calibration's stream
-            d, v, sec = _run(config, args.n, 0, det, 1)
+            d, v, sec = _run(config, args.n, 0, det, 1, args.links)
             err = np.linalg.norm(v.positions - d.truth, axis=2)
             errs[mode] = np.nanmean(err)
             print(
@@ -76,7 +81,7 @@ def enlarge(args: argparse.Namespace) -> None:
         "realistic", n=(args.n,), trials=args.trials, seed=args.seed, attack=attack, ranging=ranging
     )
     for det in args.detectors:
-        d, v, sec = _run(config, args.n, args.f, det, 0)
+        d, v, sec = _run(config, args.n, args.f, det, 0, args.links)
         hit = v.faulty[d.attackers].mean()
         every = (v.faulty | ~d.attackers).all(axis=1).mean()
         fp = v.faulty[~d.attackers].mean()
@@ -94,6 +99,9 @@ def main() -> None:
         p.add_argument("--trials", type=int, default=1000)
         p.add_argument("--seed", type=int, default=2025)
         p.add_argument("--detectors", nargs="+", default=list(DETECTORS))
+        p.add_argument(
+            "--links", choices=("screen", "off"), help="the detectors' range screening (default: theirs)"
+        )
     p = sub.choices["nlos"]
     p.add_argument("--n", type=int, default=13)
     p.add_argument("--nlos", type=float, default=0.2)

@@ -201,3 +201,13 @@ def test_compare_and_curves_take_the_enlargement(tmp_path):
     c = read_table(tmp_path / "k" / "curves.csv")
     pd = {o: p for k, o, p in zip(c["kind"], c["offset"], c["detection"], strict=True) if k == "offset"}
     assert pd[6.0] > pd[0.2]  # 6 m of enlargement is seen, 0.2 m (2 sigma) hardly
+
+
+def test_screen_takes_a_nan_diagonal_and_no_ranges(rng):
+    truth, exact = _exact_shape(rng, 8)
+    r = exact.copy()
+    r[0, np.arange(8), np.arange(8)] = np.nan  # a diagonal left unmeasured
+    assert not screen(r, 0.01).changed
+    none = np.full((1, 8, 8), np.nan)
+    s = screen(none, 0.01)
+    assert not s.changed and np.isnan(s.ranges).all()

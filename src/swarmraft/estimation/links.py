@@ -96,6 +96,7 @@ def _mds(ranges: np.ndarray) -> np.ndarray:
     never have 4 stay at the origin)."""
     T, n, _ = ranges.shape
     sym = _both_ways(ranges)
+    sym[:, np.arange(n), np.arange(n)] = 0.0
     x = np.zeros((T, n, 3))
     for t in range(T):
         d = sym[t]
@@ -265,6 +266,9 @@ def screen(
     T, n, _ = ranges.shape
     off = ~np.eye(n, dtype=bool)
     meas = ~np.isnan(ranges) & off
+    if not meas.any():  # nothing to screen
+        none = np.zeros((T, n), dtype=bool)
+        return Screen(ranges, np.zeros((T, n, n), dtype=bool), none, none, np.zeros((T, n)))
     back = np.swapaxes(ranges, 1, 2)
     both = meas & np.swapaxes(meas, 1, 2)
     with np.errstate(invalid="ignore"):

@@ -311,3 +311,41 @@ def test_shipped_scenarios_never_accuse_their_leaders(name: str) -> None:
         log = run_mission(Scenario(**{**data, "seed": seed}))
         assert log.audit["refused_entries"] == 0 and log.audit["censorship_findings"] == 0
         assert log.audit["refused_applies"] == 0 and log.committed.sum() > 0
+
+
+def test_the_record_memo_returns_what_compute_record_would_for_every_change_of_input() -> None:
+    """The simulator's `RecordMemo` shares one verification between the leader and the
+    auditors; each input that `compute_record` reads must change the memo's key, or a
+    re-run would be given another input's record."""
+    from swarmraft.protocol.drone import RecordMemo, memo_compute
+
+    w, keys, chain = honest_chain()
+    rec = StepRecord.decode(chain[10])
+    reports = {r.drone: r for r in rec.reports}
+    prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+    c = w.protocol
+    memo = RecordMemo()
+    first = memo_compute(memo, rec.step, rec.term, reports, prior, c)
+    assert memo_compute(memo, rec.step, rec.term, reports, prior, c) is first and memo.hits == 1
+    other_report = dict(reports)
+    r3 = reports[3]
+    other_report[3] = keys.sign(replace(r3, position=r3.position + [5.0, 0.0, 0.0]))
+    moved = prior.positions.copy()
+    moved[3] += [5.0, 0.0, 0.0]
+    flags = prior.faulty.copy()
+    flags[2] = ~flags[2]
+    variants = [
+        (rec.step, rec.term + 1, reports, prior, c),
+        (rec.step, rec.term, other_report, prior, c),
+        (rec.step, rec.term, {i: r for i, r in reports.items() if i != 5}, prior, c),
+        (rec.step, rec.term, reports, Prior(prior.step, moved, prior.faulty), c),
+        (rec.step, rec.term, reports, Prior(prior.step, prior.positions, flags), c),
+        (rec.step, rec.term, reports, Prior(prior.step - 1, prior.positions, prior.faulty), c),
+        (rec.step, rec.term, reports, None, c),
+        (rec.step, rec.term, reports, prior, replace(c, detector="paper")),
+    ]
+    for args in variants:
+        got, want = memo_compute(memo, *args), compute_record(*args)
+        assert got.encode() == want.encode()
+    assert memo.hits == 1
+    assert len({first.encode(), *(compute_record(*a).encode() for a in variants[1:2] + variants[3:])}) > 2

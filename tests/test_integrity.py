@@ -332,3 +332,87 @@ def test_non_finite_noise_parameters_are_refused(det):
 
     with pytest.raises(ValueError, match=f"{det}.gnss_sigma: must be finite"):
         detector_params(det, gnss_sigma=(1.5, float("nan")))
+
+
+@pytest.mark.parametrize("n, untrusted, missing", [(5, 0, 0.0), (9, 3, 0.2), (17, 6, 0.4)])
+def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
+    """The protection levels' n hypotheses (each drone's measurements left out) come from the
+    all-in-view covariance by the Woodbury identity (`integrity._without_each`); they must be
+    what inverting each hypothesis' information gives: its covariance blocks and its step."""
+    from swarmraft.estimation import integrity as itg
+
+    rng = np.random.default_rng(n)
+    x = rng.uniform(0, 100, (2, n, 3))
+    reported = x + rng.normal(0, 2, x.shape)
+    ranges = true_distances(x) + rng.normal(0, 0.1, (2, n, n))
+    ranges[rng.random(ranges.shape) < missing] = np.nan
+    trusted = np.ones((2, n), bool)
+    trusted[:, :untrusted] = False
+    noise = NoiseModel(gnss_cov=gnss_covariance(1.5, 3.0), range_sigma=0.1)
+    A, b, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, np.ones((2, n), bool))
+    J = A.sum(axis=1)
+    P0 = itg._inverse(J)
+    Cj, dj = itg._without_each(P0, b, terms)
+    Pj = np.linalg.inv(J[:, None] - A)
+    want_C = itg._blocks(Pj)
+    want_d = np.einsum("tjab,tjb->tja", Pj, b).reshape(2, n, n, 3)
+    # hypotheses that leave some drone unfixed (its variance grows 1000-fold or more) are
+    # inverted directly by `assess`; the identity must show them as such
+    v0 = np.diagonal(itg._blocks(P0), axis1=-2, axis2=-1)[:, None]
+
+    def grows(C):  # some variance 1000-fold or more, or not a variance (a singular hypothesis)
+        v = np.diagonal(C, axis1=-2, axis2=-1)
+        return ~((v > 0) & (v <= 1e3 * v0)).all(axis=(2, 3))
+
+    ill = trusted & grows(want_C)
+    assert grows(Cj)[ill].all()
+    # compared: the other hypotheses (untrusted drones leave nothing out: theirs is the
+    # all-in-view one), for the drones the all-in-view solution fixes
+    ok = (trusted & ~ill)[:, :, None] & (v0 < 1e4).all(axis=3)
+    assert ok.sum() >= n * n // 2
+    # P0 carries `_inverse`'s ridge (1e-10 of the largest information): about 1e-7 of the scale
+    assert np.allclose(Cj[ok], want_C[ok], rtol=1e-6, atol=1e-6 * np.abs(want_C[ok]).max())
+    assert np.allclose(dj[ok], want_d[ok], rtol=1e-6, atol=1e-6 * np.abs(want_d[ok]).max())
+
+
+def test_a_drone_that_only_it_measures_is_not_given_a_protection_level():
+    """Left out, drone 0's own GNSS and ranges take every measurement of it (no other drone
+    ranges to it): that hypothesis cannot be verified, which the Woodbury identity computes
+    with no precision (`assess` then inverts it directly): no `ok` with a finite level."""
+    rng = np.random.default_rng(4)
+    n = 9
+    x = uniform_cube(rng, 1, n, 100.0)
+    ranges = true_distances(x) + rng.normal(0, 0.1, (1, n, n))
+    ranges[:, 1:, 0] = np.nan  # nobody but drone 0 measures the ranges to it
+    reported = x + rng.normal(0, [1.5, 1.5, 3.0], x.shape)
+    batch = SnapshotBatch(reported, ranges, (1.5, 3.0), 0.1)
+    v = verify_batch(batch, "joint")
+    assert v.status[0] != "ok" or not np.isfinite(v.hpl[0, 0])
+
+
+def test_a_hypothesis_the_identity_gets_wrong_is_inverted_directly(monkeypatch):
+    """Where the Woodbury identity loses precision its variances come out huge, negative or
+    not finite; `assess` then inverts that hypothesis directly. Corrupting one hypothesis'
+    result must leave the verdict as it was."""
+    from swarmraft.estimation import integrity as itg
+
+    rng = np.random.default_rng(7)
+    n = 9
+    x = uniform_cube(rng, 2, n, 100.0)
+    ranges = true_distances(x) + rng.normal(0, 0.1, (2, n, n))
+    reported = x + rng.normal(0, [1.5, 1.5, 3.0], x.shape)
+    batch = SnapshotBatch(reported, ranges, (1.5, 3.0), 0.1)
+    before = verify_batch(batch, "joint")
+    real = itg._without_each
+
+    def corrupt(P0, b, terms):
+        Cj, dj = real(P0, b, terms)
+        Cj[:, 4] = -1.0  # hypothesis "drone 4" as a lost-precision identity would give it
+        dj[:, 4] = np.nan
+        return Cj, dj
+
+    monkeypatch.setattr(itg, "_without_each", corrupt)
+    after = verify_batch(batch, "joint")
+    assert (before.status == "ok").all()
+    assert (after.status == before.status).all() and (after.faulty == before.faulty).all()
+    assert np.allclose(after.hpl, before.hpl, rtol=1e-5) and np.allclose(after.vpl, before.vpl, rtol=1e-5)

@@ -146,3 +146,16 @@ def test_transfer_leader_is_listed_as_not_applied_and_touches_no_process(tmp_pat
     said = acts[0].run()
     assert said == "transfer-leader: not applied (the drone processes take no commands; simulator only)"
     assert all(log == [] for log in run.logs.values())
+
+
+def test_join_and_leave_are_listed_as_not_applied_and_touch_no_process(tmp_path):
+    faults = [{"kind": "join", "at_s": 2, "drone": 5}, {"kind": "leave", "at_s": 6, "drone": 1}]
+    run = swarm_with(tmp_path, faults)
+    acts = run.actions()
+    assert [(a.at_s, a.kind) for a in acts] == [(2, "join"), (6, "leave")]
+    said = [a.run() for a in acts]
+    assert said == [
+        f"{k}: not applied (every drone's process runs from the start, in the swarm; simulator only)"
+        for k in ("join", "leave")
+    ]
+    assert all(log == [] for log in run.logs.values())

@@ -189,7 +189,7 @@ def test_wrong_magic_version_and_kind_are_refused():
         data[2] = version
         assert reason(wire.parse, bytes(data)) == "bad_version"
     data[2] = wire.VERSION
-    for kind in (0, 6, 255):
+    for kind in (0, 7, 255):
         data[3] = kind
         assert reason(wire.parse, bytes(data)) == "unknown_kind"
 

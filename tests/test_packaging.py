@@ -16,6 +16,7 @@ SHIPPED = [
     "demo",
     "drag-off",
     "jammed-drone",
+    "join-leave",
     "leader-crash-under-attack",
     "packet-loss-20",
     "paper-recovery-11-5",

@@ -33,6 +33,7 @@ def mission_figures(result, out: Path) -> list[Path]:
     from swarmraft.experiments.mission import judged
 
     wrong = judged(log) & (log.faulty != log.spoofed)
+    up = log.alive & log.in_swarm()  # a drone outside the swarm is drawn as one that is down
     return [
         vm.error_over_time(
             log.t,
@@ -44,6 +45,7 @@ def mission_figures(result, out: Path) -> list[Path]:
             sc.name,
             alive=log.alive,
             wrong=wrong,
+            member=log.member,
         ),
         vm.swarm_maps(
             log.truth,
@@ -55,7 +57,7 @@ def mission_figures(result, out: Path) -> list[Path]:
             fig_dir / "swarm_maps.png",
             spoofed=log.spoofed,
             outage=log.outage,
-            alive=log.alive,
+            alive=up,
         ),
         vm.consensus_latency(log.t, log.latency_ms, log.events, fig_dir / "consensus_latency.png"),
         vm.messages_per_step(
@@ -210,7 +212,7 @@ def print_mission_summary(summary: dict) -> None:
     required=True,
     type=click.Path(dir_okay=False, path_type=Path),
     help="scenario TOML file, or the name of a shipped one: demo, drag-off, jammed-drone, "
-    "leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
+    "join-leave, leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
 )
 @click.option("--out", type=OutFolder(), help="output folder [results/<name>]")
 @click.option("--seed", type=int, help="override the scenario's seed")

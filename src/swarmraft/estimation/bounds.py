@@ -18,7 +18,8 @@ RMSE >= sqrt(trace(bound)). Everything is batched over a leading trial axis.
 from __future__ import annotations
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+
+from swarmraft.estimation.blas import one_blas_thread
 
 CHI2_3DOF_999 = 16.266236196238129  # chi-square, 3 dof, 0.999 quantile (catastrophic failure)
 
@@ -152,7 +153,7 @@ def swarm_crb(
     per = max(1, CHUNK_BYTES // (2 * 8 * (3 * n) ** 2))  # J and its range terms
     out = np.empty((T, n, 3, 3))
     idx = np.arange(n)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         for lo in range(0, T, per):
             hi = min(T, lo + per)
             J = swarm_information(

@@ -55,6 +55,14 @@ STEP_COLUMNS = (
     "status",
 )
 
+#: steps.csv's last column when drones join or leave (`MissionLog.member`); other missions'
+#: files stay as they were
+MEMBER_COLUMN = "member"
+
+
+def step_columns(log: MissionLog) -> tuple[str, ...]:
+    return STEP_COLUMNS + ((MEMBER_COLUMN,) if log.member is not None else ())
+
 
 def load_scenario(path: str | Path, **overrides: Any) -> Scenario:
     """A scenario from a TOML file, or a shipped scenario by name (``demo``); a bad file is a
@@ -97,20 +105,29 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
     aligned to the truth at the start of the drone's GNSS outage (nan outside outages), of
     SwarmRaft's committed position, and the snapshot bound (sqrt of the trace of the swarm
     Cramér-Rao bound of that step's measurements alone, with the spoofed, jammed and silent
-    drones' GNSS excluded)."""
+    drones' GNSS excluded). A drone outside the swarm (not joined yet, or left) has none of
+    them (nan): it takes no part in the bound's measurements either."""
     sc = log.scenario
+    member = log.in_swarm()
 
     def err(x: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(x - log.truth, axis=2)
+        e = np.linalg.norm(x - log.truth, axis=2)
+        return e if log.member is None else np.where(member, e, np.nan)
 
     trusted = ~log.spoofed & ~log.outage & log.alive
-    measured = np.ones((len(log.t), sc.drones, sc.drones), dtype=bool)
     bound = np.full(log.spoofed.shape, np.nan)
     if sc.ranging.sigma > 0 and sc.gnss.sigma_h > 0 and sc.gnss.sigma_v > 0:
-        C = swarm_crb(
-            log.truth, trusted, measured, gnss_covariance(sc.gnss.sigma_h, sc.gnss.sigma_v), sc.ranging.sigma
-        )
-        bound = np.sqrt(np.trace(C, axis1=2, axis2=3))
+        cov = gnss_covariance(sc.gnss.sigma_h, sc.gnss.sigma_v)
+        # the swarm of each step: every drone, or (drones joining and leaving) the drones in
+        # it, one bound per distinct swarm
+        swarms = [np.ones(sc.drones, bool)] if log.member is None else np.unique(member, axis=0)
+        for swarm in swarms:
+            rows = np.flatnonzero((member == swarm).all(axis=1))
+            idx = np.flatnonzero(swarm)
+            measured = np.ones((len(rows), idx.size, idx.size), dtype=bool)
+            sub = np.ix_(rows, idx)
+            C = swarm_crb(log.truth[sub], trusted[sub], measured, cov, sc.ranging.sigma)
+            bound[sub] = np.sqrt(np.trace(C, axis1=2, axis2=3))
     return {
         "gnss": err(log.gnss),
         "ins_alone": err(log.ins_alone),
@@ -123,7 +140,7 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
 def judged(log: MissionLog) -> np.ndarray:
     """(S, n) bool: the drone's flag in the step's record can be judged: the step has a
     record, the drone is alive and its report reached the leader (a silent drone is placed
-    from ranges and neither flagged nor cleared)."""
+    from ranges and neither flagged nor cleared; a drone outside the swarm sends none)."""
     return log.committed[:, None] & log.alive & ~log.missing
 
 
@@ -228,13 +245,14 @@ def _majority_warnings(log: MissionLog) -> list[str]:
             f"than (n-1)//2 = {(n - 1) // 2}: the honest drones are no majority and no detector "
             "can be expected to tell them apart"
         )
-    alive = log.alive.sum(axis=1)
-    over = (log.spoofed & log.alive).sum(axis=1) > (alive - 1) // 2
+    up = log.alive & log.in_swarm()
+    alive = up.sum(axis=1)
+    over = (log.spoofed & up).sum(axis=1) > (alive - 1) // 2
     over &= alive > 0
     if over.any() and not out:
         k = int(np.flatnonzero(over)[0])
         out.append(
-            f"from t = {log.t[k]:.1f} s, {int((log.spoofed[k] & log.alive[k]).sum())} of the "
+            f"from t = {log.t[k]:.1f} s, {int((log.spoofed[k] & up[k]).sum())} of the "
             f"{int(alive[k])} drones alive are spoofed, more than (a-1)//2 = {(int(alive[k]) - 1) // 2}"
         )
     return out
@@ -250,7 +268,7 @@ def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndar
     for (t0, what), t1 in zip(log.events, times[1:], strict=True):
         k0, k1 = _step_of(log.scenario, t0, S), _step_of(log.scenario, t1, S)
         rows = slice(k0, k1)
-        alive = log.alive[rows][:, honest]
+        alive = (log.alive & log.in_swarm())[rows][:, honest]
         out.append(
             {
                 "event": what,
@@ -364,7 +382,7 @@ def misleading_information(log: MissionLog) -> np.ndarray:
     e = log.verified - log.truth
     with np.errstate(invalid="ignore"):
         over = (np.hypot(e[..., 0], e[..., 1]) > log.hpl) | (np.abs(e[..., 2]) > log.vpl)
-    return over & (log.status == "ok")[:, None] & log.committed[:, None]
+    return over & (log.status == "ok")[:, None] & log.committed[:, None] & log.in_swarm()
 
 
 def integrity_summary(log: MissionLog) -> dict[str, Any]:
@@ -386,6 +404,7 @@ def integrity_summary(log: MissionLog) -> dict[str, Any]:
 def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, Any]]:
     misleading = misleading_information(log)
     wrong = wrong_partition(log)
+    member = log.member
     rows = []
     for k in range(len(log.t)):
         for i in range(log.scenario.drones):
@@ -425,6 +444,7 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
                     "raft_messages": log.raft_messages[k],
                     "report_messages": log.report_messages[k],
                     "status": log.status[k],
+                    **({MEMBER_COLUMN: member[k, i]} if member is not None else {}),
                 }
             )
     return rows
@@ -443,7 +463,7 @@ def write_results(log: MissionLog, out: Path, extra: dict[str, Any] | None = Non
     out.mkdir(parents=True, exist_ok=True)
     errors = error_series(log)
     summary = {**summarize(log, errors), **(extra or {})}
-    write_rows(out / "steps.csv", STEP_COLUMNS, step_rows(log, errors))
+    write_rows(out / "steps.csv", step_columns(log), step_rows(log, errors))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "scenario.json").write_text(json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n")
     return MissionResult(log, errors, summary)

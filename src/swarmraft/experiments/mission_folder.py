@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from swarmraft.experiments.config import ConfigError
-from swarmraft.experiments.mission import STEP_COLUMNS
+from swarmraft.experiments.mission import MEMBER_COLUMN, STEP_COLUMNS
 from swarmraft.sim.mission import MissionLog
 from swarmraft.sim.scenario import Scenario
 
@@ -57,7 +57,8 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
         raise ConfigError(f"{option}: {folder}: summary.json or scenario.json unreadable ({exc})") from None
     with (folder / "steps.csv").open(newline="") as fh:
         reader = csv.DictReader(fh)
-        absent = [c for c in STEP_COLUMNS if c not in (reader.fieldnames or [])]
+        wanted = STEP_COLUMNS + ((MEMBER_COLUMN,) if scenario.dynamic else ())
+        absent = [c for c in wanted if c not in (reader.fieldnames or [])]
         if absent:
             raise ConfigError(f"{option}: {folder}/steps.csv lacks columns {', '.join(absent)}")
         rows = list(reader)
@@ -105,6 +106,7 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
         raft_messages=col("raft_messages", int)[:, 0],
         report_messages=col("report_messages", int)[:, 0],
         events=[_event(e) for e in summary.get("events", [])],
+        member=col(MEMBER_COLUMN, bool) if MEMBER_COLUMN in rows[0] else None,
         detector_params=dict(summary.get("detector_params", {})),
     )
     errors = {

@@ -2,8 +2,10 @@
 anti-replay `ReplayWindow`, and `RateLimitedLog` for the drops.
 
 A drone's `Signer` seals a Raft message or a signed report into a datagram with its id and the
-next sequence number. A `Verifier` holds every drone's public key; ``check(data)`` returns
-`Accepted` (the decoded message) or `Dropped` (a reason), counts each outcome and never raises.
+next sequence number (a Raft message too large for one datagram in several, `wire.Chunk`). A
+`Verifier` holds every drone's public key; ``check(data)`` returns `Accepted` (the decoded
+message), `Partial` (an authentic piece of a larger message, held until the message is whole)
+or `Dropped` (a reason), counts each outcome and never raises.
 No sockets, no clock except the log's rate limit. Ed25519 with PyNaCl (benchmarks/bench_crypto.py).
 """
 
@@ -19,6 +21,7 @@ from nacl.exceptions import BadSignatureError
 from nacl.signing import SigningKey, VerifyKey
 
 from swarmraft.net import wire
+from swarmraft.net.chunks import Reassembler
 from swarmraft.net.wire import WireError
 from swarmraft.protocol.records import Report
 from swarmraft.raft.types import Message
@@ -52,6 +55,18 @@ class Signer:
     def seal(self, obj: Message | Report | wire.ReportAck) -> bytes:
         """The datagram carrying a Raft message, a signed report or a report's acknowledgement."""
         return self.seal_payload(*wire.encode_payload(obj))
+
+    def seal_all(self, obj: Message | Report | wire.ReportAck) -> list[bytes]:
+        """The datagrams carrying ``obj``: one, or for a Raft message larger than one
+        datagram (a MsgSnap with a large state, up to `wire.MAX_MESSAGE`) one per piece
+        (`wire.Chunk`), each signed."""
+        if not isinstance(obj, Message):
+            return [self.seal(obj)]
+        payload = wire.encode_message(obj, limit=wire.MAX_MESSAGE)
+        if len(payload) <= wire.MAX_PAYLOAD:
+            return [self.seal_payload(wire.Kind.RAFT, payload)]
+        pieces = wire.chunks(payload, self.next_seq)
+        return [self.seal_payload(wire.Kind.CHUNK, wire.encode_chunk(c)) for c in pieces]
 
     def seal_payload(self, kind: wire.Kind, payload: bytes) -> bytes:
         signed = wire.frame(kind, self.sender, self.next_seq, payload)
@@ -136,6 +151,15 @@ class Accepted:
 
 
 @dataclass(frozen=True, slots=True)
+class Partial:
+    """An authentic piece (``index`` of ``count``) of a message not yet whole."""
+
+    sender: int
+    index: int
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
 class Dropped:
     reason: str  # one of Verifier.REASONS
     detail: str
@@ -185,10 +209,12 @@ class Verifier:
         self.width = window
         self._windows: dict[int, ReplayWindow] = {}
         self.log = log or RateLimitedLog(_logger)
-        self.counters: Counter[str] = Counter(dict.fromkeys((*self.REASONS, "accepted"), 0))
+        self.counters: Counter[str] = Counter(dict.fromkeys((*self.REASONS, "accepted", "pieces"), 0))
+        self.pieces = Reassembler()
 
-    def check(self, data: bytes, origin: str | tuple = "") -> Accepted | Dropped:
-        """What ``data`` carries, or why it was dropped; ``origin`` (an address: text, or a
+    def check(self, data: bytes, origin: str | tuple = "") -> Accepted | Partial | Dropped:
+        """What ``data`` carries (a message made whole by its last piece included), a piece
+        held, or why it was dropped; ``origin`` (an address: text, or a
         (host, port) tuple, formatted only for a drop's log line) is for the log."""
         try:
             result = self._check(data)
@@ -196,6 +222,9 @@ class Verifier:
             result = Dropped("internal_error", f"{type(exc).__name__}: {exc}")
         if isinstance(result, Accepted):
             self.counters["accepted"] += 1
+            return result
+        if isinstance(result, Partial):
+            self.counters["pieces"] += 1
             return result
         self.counters[result.reason] += 1
         who = f" from drone {result.sender}" if result.sender is not None else ""
@@ -211,7 +240,7 @@ class Verifier:
             self.log.warning(result.reason, line)
         return result
 
-    def _check(self, data: bytes) -> Accepted | Dropped:
+    def _check(self, data: bytes) -> Accepted | Partial | Dropped:
         if len(data) > wire.MAX_DATAGRAM:
             return Dropped("oversized", f"{len(data)} bytes, the most is {wire.MAX_DATAGRAM}")
         try:
@@ -235,6 +264,15 @@ class Verifier:
             message = wire.decode_payload(d.kind, d.payload)
         except WireError as exc:
             return Dropped("malformed", f"signed payload: {exc}", d.sender)
+        kind = d.kind
+        if isinstance(message, wire.Chunk):
+            whole = self.pieces.add(d.sender, message)
+            if whole is None:
+                return Partial(d.sender, message.index, message.count)
+            try:
+                message, kind = wire.decode_message(whole), wire.Kind.RAFT
+            except WireError as exc:
+                return Dropped("malformed", f"message in {message.count} pieces: {exc}", d.sender)
         if isinstance(message, Message):
             if message.frm != d.sender:
                 return Dropped("sender_mismatch", f"Raft message from {message.frm}", d.sender)
@@ -245,4 +283,4 @@ class Verifier:
                 return Dropped("wrong_recipient", f"acknowledgement for drone {message.to}", d.sender)
         elif message.drone + 1 != d.sender:
             return Dropped("sender_mismatch", f"report of drone index {message.drone}", d.sender)
-        return Accepted(d.sender, d.seq, d.kind, message)
+        return Accepted(d.sender, d.seq, kind, message)

@@ -125,6 +125,12 @@ class LocalSwarm:
             elif f.kind == "transfer-leader":
                 note = "transfer-leader: not applied (the drone processes take no commands; simulator only)"
                 acts.append(Action(f.at_s, f.kind, lambda n=note: n))
+            elif f.kind in ("join", "leave"):
+                note = (
+                    f"{f.kind}: not applied (every drone's process runs from the start, in the swarm; "
+                    "simulator only)"
+                )
+                acts.append(Action(f.at_s, f.kind, lambda n=note: n))
             else:
                 acts.append(Action(f.at_s, f.kind, lambda f=f: self._network_fault(f)))
         return sorted(acts, key=lambda a: a.at_s)

@@ -172,6 +172,7 @@ def _levels(x: np.ndarray | None) -> list | None:
 
 
 #: The stop event's counter of what was sent, by the type sent.
+_NOT_DROPS = ("accepted", "pieces")  # the verifier's counters that are not drops
 _SENT_COUNTER = {Message: "sent_raft", Report: "sent_reports", wire.ReportAck: "sent_acks"}
 
 
@@ -493,12 +494,15 @@ class DroneHost:
             return
         self.counters[_SENT_COUNTER[type(obj)]] += 1
         try:
-            data = self.signer.seal(obj)
+            datagrams = self.signer.seal_all(obj)
         except wire.WireError as exc:
             self.counters["unsendable"] += 1
             _logger.warning("drone %d: cannot send to %d: %s", self.id, to, exc)
             return
-        self.transport.send(addr, data)
+        if len(datagrams) > 1:
+            self.counters["sent_in_pieces"] += 1
+        for data in datagrams:
+            self.transport.send(addr, data)
 
     def _send_raft(self, m: Message) -> None:
         self._send(m.to, m)
@@ -554,7 +558,7 @@ class DroneHost:
             "reachable_peers": reachable,
             "quorum": self._has_quorum(reachable, n, window_s),
             "peers": peers,
-            "dropped": {k: v for k, v in self.verifier.counters.items() if v and k != "accepted"},
+            "dropped": {k: v for k, v in self.verifier.counters.items() if v and k not in _NOT_DROPS},
             "accepted": self.verifier.counters.get("accepted", 0),
         }
 

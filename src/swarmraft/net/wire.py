@@ -84,6 +84,29 @@ class Kind(IntEnum):
     STATUS_REQUEST = 3  # `swarmraft status` asking a drone: sender 0, seq a nonce, no payload, no signature
     STATUS_REPLY = 4  # a drone's answer: UTF-8 JSON (net.status), signed by the drone
     REPORT_ACK = 5  # the leader's acknowledgement of a report: a ReportAck
+    CHUNK = 6  # a piece of a Raft message too big for one datagram: a Chunk
+
+
+#: Largest Raft message sent in pieces (a MsgSnap carrying a drone's state, `Chunk`).
+MAX_MESSAGE = 16 * 2**20
+_CHUNK = struct.Struct("<QHHI")  # message id, piece index, number of pieces, message length
+#: Bytes of the message each piece but the last carries.
+CHUNK_DATA = MAX_PAYLOAD - _CHUNK.size
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """Piece ``index`` of ``count`` of a Raft message of ``length`` bytes (its
+    `encode_message` bytes) that does not fit one datagram. ``message`` names the whole: the
+    sender's sequence number of the first piece, so it grows with every message a drone
+    sends and a receiver can tell a newer message from an older one. Every piece but the last
+    carries CHUNK_DATA bytes; each piece is a datagram signed on its own."""
+
+    message: int
+    index: int
+    count: int
+    length: int
+    data: bytes
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,6 +173,37 @@ def parse(data: bytes) -> Datagram:
     return Datagram(Kind(kind), sender, seq, data[HEADER_SIZE:end], data[:end], data[end:])
 
 
+def chunks(payload: bytes, message: int) -> list[Chunk]:
+    """A Raft message's bytes (at most MAX_MESSAGE) in pieces of CHUNK_DATA bytes."""
+    if len(payload) > MAX_MESSAGE:
+        raise WireError("oversized", f"message of {len(payload)} bytes, the most in pieces is {MAX_MESSAGE}")
+    size, d = len(payload), CHUNK_DATA
+    count = -(-size // d)
+    return [Chunk(message, i, count, size, payload[i * d : (i + 1) * d]) for i in range(count)]
+
+
+def encode_chunk(c: Chunk) -> bytes:
+    _check_int("chunk message", c.message, _U64)
+    return _CHUNK.pack(c.message, c.index, c.count, c.length) + c.data
+
+
+def decode_chunk(payload: bytes) -> Chunk:
+    """A piece, checked against its own header: a piece number below the count, the count
+    the length needs (at least 2: a message that fits one datagram is not sent in pieces), and
+    CHUNK_DATA bytes in every piece but the last, the rest in the last."""
+    if len(payload) < _CHUNK.size:
+        raise WireError("truncated", f"a piece of {len(payload)} bytes, the header is {_CHUNK.size}")
+    message, index, count, length = _CHUNK.unpack_from(payload)
+    if not MAX_PAYLOAD < length <= MAX_MESSAGE:
+        raise WireError("bad_value", f"a message of {length} bytes is not sent in pieces")
+    if count != -(-length // CHUNK_DATA) or index >= count:
+        raise WireError("bad_value", f"piece {index} of {count} for a message of {length} bytes")
+    want = CHUNK_DATA if index < count - 1 else length - (count - 1) * CHUNK_DATA
+    if (held := len(payload) - _CHUNK.size) != want:
+        raise WireError("length_mismatch", f"piece {index} holds {held} bytes, not {want}")
+    return Chunk(message, index, count, length, bytes(payload[_CHUNK.size :]))
+
+
 def encode_payload(obj: Message | Report | ReportAck) -> tuple[Kind, bytes]:
     """A Raft message, a signed report or a report's acknowledgement as (kind, payload bytes)."""
     if isinstance(obj, Message):
@@ -163,11 +217,13 @@ def encode_payload(obj: Message | Report | ReportAck) -> tuple[Kind, bytes]:
     raise WireError("bad_value", f"cannot encode a {type(obj).__name__}")
 
 
-def decode_payload(kind: Kind, payload: bytes) -> Message | Report | ReportAck:
-    """The Raft message, report or acknowledgement a payload holds; a status datagram is not
-    for a drone."""
+def decode_payload(kind: Kind, payload: bytes) -> Message | Report | ReportAck | Chunk:
+    """The Raft message, report, acknowledgement or piece of a message a payload holds; a
+    status datagram is not for a drone."""
     if kind == Kind.RAFT:
         return decode_message(payload)
+    if kind == Kind.CHUNK:
+        return decode_chunk(payload)
     if kind == Kind.REPORT:
         return decode_report(payload)
     if kind == Kind.REPORT_ACK:
@@ -194,8 +250,9 @@ def status_request_nonce(data: bytes) -> int | None:
     return seq
 
 
-def encode_message(msg: Message) -> bytes:
-    """A Raft message as bytes: every field, entries with their term, index, kind and data."""
+def encode_message(msg: Message, limit: int = MAX_PAYLOAD) -> bytes:
+    """A Raft message as bytes: every field, entries with their term, index, kind and data;
+    WireError ``oversized`` past ``limit`` bytes (MAX_MESSAGE: for a message sent in pieces)."""
     if msg.type not in _MSG_CODES:
         raise WireError("bad_value", f"message type {msg.type!r}")
     for name in ("frm", "to"):
@@ -239,8 +296,8 @@ def encode_message(msg: Message) -> bytes:
         parts.append(struct.pack(f"<{len(s.voters) + len(s.learners)}I", *s.voters, *s.learners))
         parts.append(s.data)
     out = b"".join(parts)
-    if len(out) > MAX_PAYLOAD:
-        raise WireError("oversized", f"message of {len(out)} bytes, the most is {MAX_PAYLOAD}")
+    if len(out) > limit:
+        raise WireError("oversized", f"message of {len(out)} bytes, the most is {limit}")
     return out
 
 

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, compute_record
+from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, memo_compute
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.raft import Entry, EntryKind
 
@@ -187,7 +187,8 @@ class Auditor:
             if rec.prior_positions is None or rec.prior_faulty is None:
                 return "prior without positions"
             prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
-        again = compute_record(rec.step, rec.term, {r.drone: r for r in rec.reports}, prior, c)
+        reports = {r.drone: r for r in rec.reports}
+        again = memo_compute(self.drone.record_memo, rec.step, rec.term, reports, prior, c)
         if not np.array_equal(again.missing, rec.missing):
             return "missing drones differ from the reports"
         if not np.array_equal(again.faulty, rec.faulty):

@@ -15,8 +15,16 @@ The rules are pure functions of what the leader knows, so every leader applies t
   that is alive and caught up is promoted (the committee grows by one, so its quorum never
   depends on the dead voter more than before), then the dead voter is removed. A live member
   beyond the committee's size is demoted no further than that: once the committee is back to
-  ``size`` voters nothing changes. A drone that is in the swarm but not a member (removed when
-  it was thought dead, and back) rejoins as a learner.
+  ``size`` voters nothing changes. A drone that is in the swarm but not a member (one that
+  joins the swarm, or one removed when it was thought dead, and back) joins as a learner. A
+  drone that leaves the swarm for good is removed: a voter once a learner took its place (or
+  at once when none is left to wait for), never by itself as leader (it hands over first).
+
+Who is in the swarm (joined and not left) is the mission's plan, the same for every drone, as
+the list of ids `initial_committee` starts from: joins and leaves need no messages to agree on.
+Only the leader proposes configuration changes (a follower's are not forwarded,
+`RaftNode.propose_conf_change`): the order matters (promote before remove), and only the
+leader knows who is caught up and whom it hears from.
 
 Changes go one at a time (`raft.membership`: single-server changes; the leader refuses a new
 one while one is uncommitted), so the leader calls `next_change` every step and proposes what
@@ -55,27 +63,46 @@ def next_change(
     swarm: Collection[int],
     silent_s: Mapping[int, float],
     caught_up: Collection[int],
-    size: int,
+    size: int | None,
     dead_after_s: float,
+    leaving: Collection[int] = (),
 ) -> ConfChange | None:
     """The change the leader should propose now, or None.
 
-    ``swarm``: every drone id; ``silent_s[i]``: seconds since the leader last heard from
-    drone i (its Raft answers, or its reports; a drone missing from it counts as just heard);
-    ``caught_up``: the learners whose log is close enough to the leader's to be promoted. A
-    dead voter stays while no learner can take its place: removing it would shrink the
-    committee below ``size``, one failure closer to losing its quorum."""
-    check_size(size)
+    ``swarm``: the ids of the drones in the swarm now (those that have joined and not left);
+    ``silent_s[i]``: seconds since the leader last heard from drone i (its Raft answers, or
+    its reports; a drone missing from it counts as just heard); ``caught_up``: the learners
+    whose log is close enough to the leader's to be promoted; ``size``: the committee's size
+    (None: no committee, every member votes: every caught-up learner is promoted and a dead
+    voter is never removed). A dead voter stays while no learner can take its place: removing
+    it would shrink the committee below ``size``, one failure closer to losing its quorum.
+
+    ``leaving``: drones that left the swarm for good and are still members. A leaving learner
+    is removed. A leaving voter is replaced as a dead one is (a live caught-up learner promoted
+    first), but removed without a replacement when no live learner is left to wait for (a
+    drone that left never answers again: keeping it a voter would only make the quorum wait for
+    it; without a committee it is removed at once); the leader never removes itself (its host
+    hands leadership over first)."""
+    if size is not None:
+        check_size(size)
+    cap = size if size is not None else len(conf.members)
+    gone = set(leaving)
 
     def alive(i: int) -> bool:
-        return i == leader or silent_s.get(i, 0.0) < dead_after_s
+        return i not in gone and (i == leader or silent_s.get(i, 0.0) < dead_after_s)
 
-    dead_voters = sorted(v for v in conf.voters if not alive(v))
+    dead_voters = sorted(v for v in conf.voters if not alive(v) and v not in gone)
+    leavers = sorted(v for v in conf.voters if v in gone and v != leader)
     ready = sorted(lr for lr in conf.learners if alive(lr) and lr in caught_up)
-    if len(conf.voters) - len(dead_voters) < size and ready:
+    staying = len(conf.voters) - len(dead_voters) - len(leavers) - (leader in gone)
+    if staying < cap and ready:
         return ConfChange(ConfChangeType.PROMOTE, ready[0])
-    if dead_voters and len(conf.voters) > size:
+    if leavers and (size is None or len(conf.voters) > size or not any(alive(lr) for lr in conf.learners)):
+        return ConfChange(ConfChangeType.REMOVE, leavers[0])
+    if dead_voters and size is not None and len(conf.voters) > size:
         return ConfChange(ConfChangeType.REMOVE, dead_voters[0])
+    if left := sorted(lr for lr in conf.learners if lr in gone):
+        return ConfChange(ConfChangeType.REMOVE, left[0])
     back = sorted(i for i in set(swarm) - set(conf.members) if alive(i))
     if back:
         return ConfChange(ConfChangeType.ADD_LEARNER, back[0])

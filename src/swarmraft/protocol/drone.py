@@ -16,7 +16,9 @@ drone holds the same records.
 
 from __future__ import annotations
 
+import hashlib
 import struct
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -127,7 +129,8 @@ class SwarmDrone:
     before it applies it (a learner's check; a voter's comes earlier, at append: `audit`'s
     `Auditor.validate` is the Raft node's validator) and refuses a record that does not
     follow from its evidence; ``recompute_cache`` is the simulator's shared memo of the
-    evidence checks (`Auditor`)."""
+    evidence checks (`Auditor`) and ``record_memo`` its shared `RecordMemo` (the leader's
+    verification and every auditor's re-run of it are then computed once)."""
 
     def __init__(
         self,
@@ -137,8 +140,10 @@ class SwarmDrone:
         audit: bool = False,
         recompute_cache: dict | None = None,
         censor: tuple[int, int] | None = None,
+        record_memo: RecordMemo | None = None,
     ) -> None:
         self.index = index
+        self.record_memo = record_memo
         self.config = config
         self.keys = keys
         self.state = Applied()
@@ -207,6 +212,10 @@ class SwarmDrone:
         self.last_seen[report.drone] = max(self.last_seen.get(report.drone, -1), report.step)
         return True
 
+    def forget(self, drone: int) -> None:
+        """Drone ``drone`` (index) left the swarm: `has_all` no longer waits for its reports."""
+        self.last_seen.pop(drone, None)
+
     def has_all(self, step: int, recent: int = 10) -> bool:
         """Whether every drone heard from in the last ``recent`` steps has reported for
         ``step`` (a silent drone does not hold the step up beyond its first deadlines)."""
@@ -237,7 +246,7 @@ class SwarmDrone:
         # what the data could not settle, and carrying them on locks the wrong partition in.
         last = self.trusted_record(step)
         prior = None if last is None else Prior(last.step, last.positions, last.faulty)
-        return compute_record(step, term, reports, prior, self.config)
+        return memo_compute(self.record_memo, step, term, reports, prior, self.config)
 
     def seal(self, rec: StepRecord) -> bytes:
         """The record signed by this drone as leader, encoded for the log."""
@@ -247,6 +256,66 @@ class SwarmDrone:
         if self.audit is not None:
             self.audit.proposed(data, StepRecord.decode(data))
         return data
+
+
+class RecordMemo:
+    """The newest ``size`` results of `compute_record`, by a digest of all of its inputs (the
+    step, the term, every signed report's bytes, the prior, the configuration). The simulator
+    shares one among its drones: `compute_record` is a pure function, so a leader's
+    verification and each auditor's re-run of the same inputs are one computation and no
+    result changes. A record from the memo is shared: callers must not modify it (a lying
+    leader's record is a modified copy, `sim.mission`)."""
+
+    def __init__(self, size: int = 64) -> None:
+        self.size = size
+        self._held: OrderedDict[bytes, StepRecord] = OrderedDict()
+        self.hits = 0
+
+    def get(self, key: bytes) -> StepRecord | None:
+        rec = self._held.get(key)
+        self.hits += rec is not None
+        return rec
+
+    def put(self, key: bytes, rec: StepRecord) -> None:
+        self._held[key] = rec
+        while len(self._held) > self.size:
+            self._held.popitem(last=False)
+
+
+def record_inputs_key(
+    step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
+) -> bytes:
+    """A digest of everything `compute_record` reads."""
+    h = hashlib.sha256(struct.pack("<qq", step, term))
+    for i in sorted(reports):
+        body = reports[i].encode()
+        h.update(struct.pack("<qI", i, len(body)) + body)
+    if last is None:
+        h.update(b"no prior")
+    else:
+        pos, flags = np.ascontiguousarray(last.positions, "<f8"), np.ascontiguousarray(last.faulty, bool)
+        h.update(struct.pack("<q", last.step) + pos.tobytes() + flags.tobytes() + repr(pos.shape).encode())
+    h.update(repr(c).encode())
+    return h.digest()
+
+
+def memo_compute(
+    memo: RecordMemo | None,
+    step: int,
+    term: int,
+    reports: dict[int, Report],
+    last: Prior | None,
+    c: ProtocolConfig,
+) -> StepRecord:
+    """`compute_record`, through ``memo`` when there is one."""
+    if memo is None:
+        return compute_record(step, term, reports, last, c)
+    key = record_inputs_key(step, term, reports, last, c)
+    rec = memo.get(key)
+    if rec is None:
+        rec = compute_record(step, term, reports, last, c)
+        memo.put(key, rec)
+    return rec
 
 
 class Prior(NamedTuple):
@@ -312,16 +381,20 @@ def compute_record(
         if trusted.sum() >= 4:
             start = np.where(present[:, None], reported, np.nanmean(reported[trusted], axis=0))
             cov = gnss_covariance(*c.gnss_sigma)
-            est, st = trusted_estimate(
-                start[None],
-                ranges[None],
-                trusted[None],
+            # A drone nobody heard (no report, no range to it: one outside the swarm) is not
+            # part of the step: not placed, and its missing geometry makes no record degenerate.
+            h = np.flatnonzero(present | np.isfinite(ranges[present]).any(axis=0))
+            est_h, st = trusted_estimate(
+                start[h][None],
+                ranges[np.ix_(h, h)][None],
+                trusted[h][None],
                 cov,
                 c.range_sigma,
-                prior=prior[None],
+                prior=prior[h][None],
                 prior_sigma=c.prior_sigma,
             )
-            est = est[0]
+            est = np.full((n, 3), np.nan)
+            est[h] = est_h[0]
             gate_chi2 = c.innovation_gate or 25.9
             disagree = np.sum((reported - est) ** 2 / np.diag(cov), axis=1) > gate_chi2
             faulty |= carry & disagree

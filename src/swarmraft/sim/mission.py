@@ -14,7 +14,8 @@ import numpy as np
 
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.committee import initial_committee, next_change
-from swarmraft.raft import Entry, EntryKind, SnapshotPolicy, Storage
+from swarmraft.protocol.drone import RecordMemo
+from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
@@ -57,6 +58,12 @@ class MissionLog:
     ins_sigma_window: float = 0.0
     detector_params: dict = field(default_factory=dict)  # as used (calibrated thresholds included)
     audit: dict = field(default_factory=dict)  # the audit's counts (`Mission.audit_summary`)
+    # (S, n) bool: the drone is in the swarm (joined and not left); None: every drone always
+    member: np.ndarray | None = None
+
+    def in_swarm(self) -> np.ndarray:
+        """(S, n) bool: ``member``, or every drone at every step when nobody joins or leaves."""
+        return self.member if self.member is not None else np.ones(self.spoofed.shape, bool)
 
 
 def world_log(w: ScenarioWorld) -> MissionLog:
@@ -154,7 +161,19 @@ class Mission:
         )
         link = LinkModel.of(sc.network)
         committee = sc.protocol.committee
-        conf = initial_committee(range(1, n + 1), committee) if committee else None
+        # who is in the swarm now: every drone but those that join later (`sc.joiners`); a
+        # drone that leaves is taken out at once and is `_leaving` until its removal from the
+        # Raft configuration is committed, when its node shuts down for good (`left`)
+        self.dynamic = sc.dynamic
+        self.swarm: set[int] = set(range(1, n + 1)) - sc.joiners
+        self._leaving: set[int] = set()
+        self.left: set[int] = set()
+        if committee:
+            conf = initial_committee(sorted(self.swarm), committee)
+        elif sc.joiners:  # every drone of the swarm votes; the others are not members yet
+            conf = ConfState(tuple(sorted(self.swarm)))
+        else:
+            conf = None
         self.auditing = sc.protocol.audit
         self.cluster = Cluster(
             n,
@@ -172,6 +191,8 @@ class Mission:
             storage=storage,
             validate=self._validate if self.auditing else None,
         )
+        for j in sorted(sc.joiners):  # not started before it joins (its storage is empty)
+            self.cluster.crash(j)
         # the committee's leader: when it last heard from each drone (ms), and since when it leads
         self._heard: dict[int, float] = {}
         self._heard_by: int | None = None
@@ -182,6 +203,9 @@ class Mission:
         self.keys = Keyring.generate(n, w.rng_keys)
         # the evidence checks depend only on a record's bytes: drones share them (docs/audit.md)
         self._audit_cache: dict = {}
+        # and a record's verification is a pure function of its inputs: the leader's and the
+        # auditors' re-runs of it are one computation (protocol.drone.RecordMemo)
+        self._record_memo = RecordMemo()
         self.drones = [self._new_drone(i) for i in range(n)]
         # the report fan-out's own generator: it must not shift the draws of the rest of the run
         self._fan_rng = random.Random(sc.seed * 7_919 + 17)
@@ -198,6 +222,8 @@ class Mission:
         self.ins_base_t = np.zeros(n)
         self.ins_base_pos = self.traj.positions[0].copy()
         self.log = world_log(w)
+        if self.dynamic:
+            self.log.member = np.zeros(self.log.spoofed.shape, bool)
         self.live = _live_copy(self.log) if on_step is not None else None
         self.sent_to: dict[int, int | None] = {}
 
@@ -210,6 +236,7 @@ class Mission:
             audit=self.auditing,
             recompute_cache=self._audit_cache,
             censor=(sc.protocol.censor_k, sc.protocol.censor_m),
+            record_memo=self._record_memo if self.auditing else None,
         )
 
     # -- sensing and reporting --------------------------------------------------------------
@@ -223,12 +250,21 @@ class Mission:
         fix, has_fix = w.fix[k], w.has_fix[k]
         ins = self._ins(k)
         ranges = w.measured_ranges(k, ins)
+        if self.dynamic:
+            # a drone outside the swarm takes no part: no report, and no two-way ranging with
+            # it (its radio does not answer), so nobody places it from ranges either
+            out = [i for i in range(n) if i + 1 not in self.swarm]
+            ranges[out, :] = np.nan
+            ranges[:, out] = np.nan
+            log.member[k] = [i + 1 in self.swarm for i in range(n)]
         self._rows[k] = ranges
         for i in range(n):
             node = i + 1
             alive = self.cluster.alive(node)
             log.alive[k, i] = alive
             if not alive or self.cluster.paused(node):  # a paused process sends nothing
+                continue
+            if node not in self.swarm:
                 continue
             pos, source = (fix[i], "gnss") if has_fix[i] else (ins[i], "ins")
             innov = self._innovation(k, i) if has_fix[i] else None
@@ -256,12 +292,13 @@ class Mission:
             self.cluster.send_app(node, lead, self._receive, report.encode())
 
     def _fan_out(self, node: int, report: Report) -> None:
-        """The report to every other drone but the leader it went to (the audit's censorship
-        check), on the fan-out's own generator."""
+        """The report to every voter (in the sender's view of the configuration) but itself
+        and the leader it went to (the audit's censorship check: only voters can depose a
+        leader; with a committee, learners get no copy), on the fan-out's own generator."""
         data = report.encode()
         self.drones[node - 1].audit.note_report(report)
-        for j in self.cluster.ids:
-            if j != node and j != self.sent_to.get(node):
+        for j in self.cluster.nodes[node].conf_state.voters:
+            if j != node and j != self.sent_to.get(node) and j in self.swarm:
                 self.cluster.send_app(node, j, self._fanned, data, rng=self._fan_rng)
 
     def _fanned(self, node: int, data: bytes) -> None:
@@ -317,13 +354,16 @@ class Mission:
             return
         self.log.term[k] = self.cluster.nodes[lead].term
         self._propose(lead, k)
-        if self.sc.protocol.committee:
+        if self.sc.protocol.committee or self.dynamic:
             self._committee(lead)
 
     def _committee(self, lead: int) -> None:
-        """The leader keeps the committee whole (`protocol.committee`): it notes whom it heard
-        from (Raft answers in the last check-quorum period, or a report) and proposes the one
-        change the rules ask for, if any (a change still pending is refused: retried next step)."""
+        """The leader keeps the committee whole (`protocol.committee`) and the configuration
+        in step with the swarm (drones joining and leaving): it notes whom it heard from (Raft
+        answers in the last check-quorum period, or a report) and proposes the one change the
+        rules ask for, if any (a change still pending is refused: retried next step). A
+        leader that leaves hands leadership over first; a leaving drone whose removal the
+        leader has committed shuts down."""
         c, now = self.cluster, self.cluster.now
         node = c.nodes[lead]
         assert node is not None
@@ -333,17 +373,42 @@ class Mission:
             if pr.recent_active:  # answered in the current check-quorum period
                 self._heard[i] = now
         conf, last, gap = node.conf_state, node.log.last_index(), node.config.promote_gap
+        if self._leaving:
+            self._shut_down_removed(node)
+            if lead in self._leaving:
+                # it hands over to a live voter that stays; with none yet (a committee of one)
+                # the rule below promotes a learner first
+                if node.lead_transferee is not None:
+                    return
+                if any(v != lead and v not in self._leaving and c.alive(v) for v in conf.voters):
+                    self.log.events.append((now / 1000, self._transfer(None, leaving=True)))
+                    return
         caught_up = [lr for lr in conf.learners if lr in node.prs and node.prs[lr].match + gap >= last]
         silent = {i: (now - t) / 1000 for i, t in self._heard.items()}
         pc = self.sc.protocol
-        cc = next_change(conf, lead, c.ids, silent, caught_up, pc.committee, pc.committee_dead_after_s)
+        swarm = sorted(self.swarm) if self.dynamic else c.ids
+        size, dead_s = pc.committee or None, pc.committee_dead_after_s
+        cc = next_change(conf, lead, swarm, silent, caught_up, size, dead_s, self._leaving)
         if cc is None:
             return
         try:
             c.propose_conf_change(cc, via=lead)
         except (ConfChangeRefused, NotLeader):
             return
-        self.log.events.append((now / 1000, f"committee: {cc.type.value} drone {cc.node}"))
+        what = "committee" if pc.committee else "membership"
+        self.log.events.append((now / 1000, f"{what}: {cc.type.value} drone {cc.node}"))
+
+    def _shut_down_removed(self, node) -> None:  # noqa: ANN001 (the leader's RaftNode)
+        """Leaving drones that are no longer in the leader's committed configuration go: their
+        node stops for good (as etcd's member stops once it is removed)."""
+        committed = node.log.committed >= node.confs.last_index
+        for d in sorted(self._leaving):
+            if committed and d not in node.conf_state.members:
+                self._leaving.discard(d)
+                self.left.add(d)
+                if self.cluster.alive(d):
+                    self.cluster.crash(d)
+                self.log.events.append((self.cluster.now / 1000, f"drone {d} left: its removal is committed"))
 
     def _propose(self, lead: int, k: int) -> None:
         node = self.cluster.nodes[lead]
@@ -485,6 +550,18 @@ class Mission:
             self.liar = c.leader()
             who = f"leader {self.liar}" if self.liar is not None else "the next leader"
             self.log.events.append((now, f"{who} compromised: lies ({f.mode} drone {f.drone})"))
+        elif f.kind == "join":
+            if not c.alive(f.drone):
+                c.restart(f.drone)  # a new node, with empty storage: not a member yet
+            self.swarm.add(f.drone)
+            self._heard[f.drone] = c.now  # it announces itself: heard now
+            self.log.events.append((now, f"drone {f.drone} joins the swarm"))
+        elif f.kind == "leave":
+            self.swarm.discard(f.drone)
+            self._leaving.add(f.drone)
+            for d in self.drones:  # the leader no longer waits for its reports
+                d.forget(f.drone - 1)
+            self.log.events.append((now, f"drone {f.drone} leaves the swarm"))
         elif f.kind == "heal":
             c.heal()
             self.log.events.append((now, "network healed"))
@@ -492,9 +569,10 @@ class Mission:
             c.set_loss(f.value)
             self.log.events.append((now, f"loss set to {f.value:.0%}"))
 
-    def _transfer(self, to: int | None) -> str:
+    def _transfer(self, to: int | None, leaving: bool = False) -> str:
         """The leader hands over to drone ``to``, or (None) to the voter whose log is the most
-        complete (highest match index; the lowest id on a tie). Returns the event's text."""
+        complete (highest match index; the lowest id on a tie) and that stays in the swarm.
+        Returns the event's text (``leaving``: the leader leaves the swarm)."""
         c = self.cluster
         lead = c.leader()
         if lead is None:
@@ -502,7 +580,9 @@ class Mission:
         node = c.nodes[lead]
         assert node is not None
         if to is None:
-            others = [v for v in node.conf_state.voters if v != lead]
+            others = [v for v in node.conf_state.voters if v != lead and v not in self._leaving]
+            if leaving:  # hand over to a drone that can take it
+                others = [v for v in others if c.alive(v)]
             if not others:
                 return f"transfer-leader: leader {lead} is the only voter"
             to = max(others, key=lambda v: (node.prs[v].match, -v))
@@ -511,7 +591,7 @@ class Mission:
         if not c.alive(to):
             return f"transfer-leader: drone {to} is down, leader {lead} keeps leading"
         c.transfer_leader(to)
-        return f"leader {lead} hands over to drone {to}"
+        return f"leader {lead} hands over to drone {to}" + (" (it leaves the swarm)" if leaving else "")
 
     # -- running ----------------------------------------------------------------------------
     def run(self, progress: Callable[[int], None] | None = None) -> MissionLog:

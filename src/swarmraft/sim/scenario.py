@@ -16,6 +16,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from swarmraft.estimation.registry import detector_params, get_detector
 from swarmraft.protocol.committee import check_size
 
+#: the fewest drones a swarm flies with: a join or a leave may never leave fewer in it
+MIN_SWARM = 3
+
+#: the faults that act on the drone they name: it must be in the swarm at that time
+_ONE_DRONE = ("crash", "restart", "pause", "transfer-leader")
+
 #: a scenario's name names its output folder: one path component, no leading dot
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
 
@@ -157,6 +163,8 @@ class FaultConfig(_Strict):
         "loss",
         "transfer-leader",
         "lying-leader",
+        "join",
+        "leave",
     ]
     at_s: float = Field(ge=0)
     drone: int | None = None
@@ -222,7 +230,7 @@ class Scenario(_Strict):
                 raise ValueError(
                     f"fault[{k}].at_s: {f.at_s:g} s is not before the mission's end ({self.duration_s:g} s)"
                 )
-            if f.kind in ("crash", "restart", "lying-leader") and f.drone is None:
+            if f.kind in ("crash", "restart", "lying-leader", "join", "leave") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
             if f.kind == "lying-leader" and f.mode is None:
                 raise ValueError(f"fault[{k}].mode: lying-leader needs one of move, clear, accuse, censor")
@@ -253,6 +261,7 @@ class Scenario(_Strict):
                 check_size(self.protocol.committee)
             except ValueError as exc:
                 raise ValueError(f"protocol.committee: {exc}") from None
+        self._check_membership()
         if sum(f.kind == "lying-leader" for f in self.fault) > 1:
             raise ValueError("fault: at most one lying-leader fault")
         if self.raft.heartbeat_tick >= self.raft.election_tick:
@@ -266,6 +275,58 @@ class Scenario(_Strict):
         except ValueError as exc:
             raise ValueError(f"protocol.detector_params: {exc}") from None
         return self
+
+    def _check_membership(self) -> None:
+        """Joins and leaves, in time order (faults at the same time in list order): a drone
+        with a join is outside the swarm until it; a join is for a drone outside the swarm, a
+        leave for one in it (for good: no join after it); at least `MIN_SWARM` drones in the
+        swarm at every moment; the faults that act on one drone (crash, restart, pause,
+        transfer-leader) name a drone in the swarm at that time."""
+        joiners = {f.drone for f in self.fault if f.kind == "join"}
+        swarm = set(range(1, self.drones + 1)) - joiners
+        if joiners and len(swarm) < MIN_SWARM:
+            k = next(k for k, f in enumerate(self.fault) if f.kind == "join")
+            raise ValueError(
+                f"fault[{k}].drone: with {len(joiners)} drones joining later only {len(swarm)} are in "
+                f"the swarm at the start; at least {MIN_SWARM}"
+            )
+        left: set[int] = set()
+        order = sorted(range(len(self.fault)), key=lambda k: self.fault[k].at_s)
+        for k in order:
+            f = self.fault[k]
+            d, at = f.drone, f"{f.at_s:g} s"
+            if f.kind == "join":
+                if d in left:
+                    raise ValueError(f"fault[{k}].drone: drone {d} left the swarm for good before {at}")
+                if d in swarm:
+                    raise ValueError(
+                        f"fault[{k}].drone: drone {d} is in the swarm at {at} already "
+                        "(a join is for a drone outside it: one joins once, at most)"
+                    )
+                swarm.add(d)
+            elif f.kind == "leave":
+                if d not in swarm:
+                    why = "left already" if d in left else "has not joined yet"
+                    raise ValueError(f"fault[{k}].drone: drone {d} is not in the swarm at {at} ({why})")
+                if len(swarm) - 1 < MIN_SWARM:
+                    raise ValueError(
+                        f"fault[{k}].drone: after drone {d} leaves at {at} only {len(swarm) - 1} drones "
+                        f"are in the swarm; at least {MIN_SWARM} must stay"
+                    )
+                swarm.discard(d)
+                left.add(d)
+            elif d is not None and d not in swarm and f.kind in _ONE_DRONE:
+                raise ValueError(f"fault[{k}].drone: drone {d} is not in the swarm at {at} ({f.kind})")
+
+    @property
+    def joiners(self) -> set[int]:
+        """Drones outside the swarm at the start (each joins with a ``join`` fault)."""
+        return {f.drone for f in self.fault if f.kind == "join"}
+
+    @property
+    def dynamic(self) -> bool:
+        """Whether drones join or leave during the mission."""
+        return any(f.kind in ("join", "leave") for f in self.fault)
 
     @property
     def steps(self) -> int:

@@ -60,10 +60,12 @@ def error_over_time(
     title: str = "",
     alive: np.ndarray | None = None,
     wrong: np.ndarray | None = None,
+    member: np.ndarray | None = None,
 ) -> Path:
     """One panel per drone: error of raw GNSS, of INS never reset, of INS aligned at the
     start of a GNSS outage, and of SwarmRaft over time, with the snapshot bound; spoofing,
-    GNSS outages and time without the drone (crashed) shaded; faults drawn and labelled
+    GNSS outages, time without the drone (crashed) and, with ``member`` (steps x drones: in
+    the swarm), time outside the swarm (before it joins, after it leaves) shaded; faults drawn and labelled
     where there are any. ``wrong`` (steps x drones) marks the steps whose record put the drone
     on the wrong side of the partition (an honest drone flagged, a spoofed one not flagged):
     a marker on that drone's SwarmRaft error, and a tick at the top of every panel. The
@@ -75,8 +77,10 @@ def error_over_time(
     n = spoofed.shape[1]
     alive = np.ones_like(spoofed) if alive is None else alive
     wrong = np.zeros_like(spoofed) if wrong is None else wrong
+    out = np.zeros_like(spoofed) if member is None else ~member
+    alive = alive | out  # outside the swarm: shaded as such, not as crashed
     wrong_step = wrong.any(axis=1)
-    singles, rest = _panel_drones(spoofed, outage, alive, wrong)
+    singles, rest = _panel_drones(spoofed, outage, alive & ~out, wrong)
     panels = len(singles) + (1 if rest.size else 0)
     cols = int(np.ceil(np.sqrt(panels)))
     rows = int(np.ceil(panels / cols))
@@ -90,6 +94,7 @@ def error_over_time(
             continue
         group = np.array([singles[k]]) if k < len(singles) else rest
         _error_panel(ax, t, errors, group, spoofed, outage, alive, wrong)
+        _shade(ax, t, out[:, group].any(axis=1), "tab:olive", "outside the swarm")
         _fault_lines(ax, events, label_it=k < cols)
         ax.set_yscale("symlog", linthresh=LINEAR_BELOW_M, linscale=0.4)
         if wrong_step.any():
@@ -105,11 +110,13 @@ def error_over_time(
         if group.size == 1:
             i = int(group[0])
             down = np.flatnonzero(~alive[:, i])
-            ax.set_title(
-                f"drone {i + 1}" + (f" (crashed at {t[down[0]]:.1f} s)" if down.size else ""),
-                fontsize=9,
-                color="black" if not down.size else "dimgray",
-            )
+            inside = np.flatnonzero(~out[:, i])
+            note = f" (crashed at {t[down[0]]:.1f} s)" if down.size else ""
+            if inside.size and inside[0] > 0:
+                note = f" (joins at {t[inside[0]]:.1f} s)"
+            elif inside.size and inside[-1] < len(t) - 1:
+                note = f" (leaves at {t[inside[-1] + 1]:.1f} s)"
+            ax.set_title(f"drone {i + 1}" + note, fontsize=9, color="dimgray" if note else "black")
         else:
             ax.set_title(f"the other {group.size} drones: median (solid), maximum (thin)", fontsize=9)
         ax.grid(True, which="major", ls=":", alpha=0.5)

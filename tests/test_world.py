@@ -62,6 +62,30 @@ def test_gauss_markov_variance_and_correlation(rng):
     assert lag1 == pytest.approx(np.exp(-0.1), abs=0.01)
 
 
+@pytest.mark.parametrize("mode", ["link", "direction"])
+def test_uwb_nlos_per_link_shares_the_bias_in_both_directions(rng, mode):
+    """Per link, d_ij and d_ji carry the same NLOS bias (the path is shared); per direction,
+    each carries its own, so about half the biased links are biased one way only."""
+    p = uniform_cube(rng, 500, 7)
+    true = true_distances(p)
+    bias = UWBRanging(sigma=0.0, nlos_prob=0.3, nlos_mode=mode).measure(rng, p) - true
+    back = np.swapaxes(bias, 1, 2)
+    hit = bias > 0
+    assert np.mean(off_diagonal(hit)) == pytest.approx(0.3, abs=0.01)
+    one_way = off_diagonal(hit ^ (back > 0)).mean()
+    if mode == "link":
+        np.testing.assert_allclose(bias, back, atol=1e-9)
+        assert one_way == 0
+    else:
+        assert one_way == pytest.approx(2 * 0.3 * 0.7, abs=0.02)
+        assert np.abs(bias - back).max() > 0.1
+
+
+def test_uwb_nlos_mode_is_validated():
+    with pytest.raises(ValueError, match="nlos_mode"):
+        UWBRanging(nlos_prob=0.1, nlos_mode="path")
+
+
 def test_exact_ranging_is_true_and_symmetric(rng):
     p = uniform_cube(rng, 10, 6)
     r = ExactRanging().measure(rng, p)

@@ -485,12 +485,20 @@ def calibrate(preset, n_text, trials, seed) -> None:
     show_default=True,
     help="spoof offset of the ROC trials, m",
 )
+@click.option(
+    "--attack",
+    type=click.Choice(["jump", "enlarge"]),
+    default="jump",
+    show_default=True,
+    help="jump: the offset is a GNSS spoof's; enlarge: each attacker's distance enlargement, m",
+)
 @click.option("--seed", type=int, default=2025, show_default=True)
 @click.option("--out", type=OutFolder(), default="results/curves", show_default=True)
-def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, seed, out) -> None:
+def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, attack, seed, out) -> None:
     """Detection curves per detector: ROC (detection against false-alarm rate as the
-    threshold moves) and detection probability against spoof offset at a fixed false-alarm
-    rate. Writes curves.csv, roc.png and detection_vs_offset.png."""
+    threshold moves) and detection probability against spoof offset (or, with --attack
+    enlarge, distance enlargement) at a fixed false-alarm rate. Writes curves.csv, roc.png
+    and detection_vs_offset.png."""
     from swarmraft import viz
     from swarmraft.experiments import build_config
     from swarmraft.experiments.curves import CURVE_COLUMNS, THRESHOLDS, detection_curves
@@ -511,9 +519,11 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, se
     total = sum(len(THRESHOLDS[d][1]) + len(offs) for d in dets if d in THRESHOLDS)
     prog, start = progress_bar("curves", "points")
     with prog:
-        points = detection_curves(config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0))
+        points = detection_curves(
+            config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0), attack
+        )
     write_rows(out / "curves.csv", CURVE_COLUMNS, [p.__dict__ for p in points])
-    title = f"preset {preset}, n = {n}, f = {f}, {trials} trials per point"
+    title = f"preset {preset}, {attack}, n = {n}, f = {f}, {trials} trials per point"
     console.print(f"wrote {out / 'curves.csv'}", soft_wrap=True)
     console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}", soft_wrap=True)
     console.print(

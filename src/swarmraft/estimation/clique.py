@@ -64,7 +64,9 @@ def consistency_graph(
     with np.errstate(invalid="ignore"):
         ok = np.abs(dhat - dbar) <= np.maximum(k * np.sqrt(var), tol)
         agree = np.abs(fwd - back) <= np.maximum(k * np.sqrt(2 * s_d2), tol)
-    ok &= np.where(both, agree, True) & (cnt > 0)
+    # a pair without a range (out of range, or a link the screening dropped) gives no
+    # evidence against either drone: consistent
+    ok = np.where(cnt > 0, ok & np.where(both, agree, True), True)
     ok[:, np.arange(n), np.arange(n)] = False
     return ok
 

@@ -8,14 +8,16 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from swarmraft.estimation.bounds import gnss_covariance
+from swarmraft.estimation.link_params import LinkParams
 from swarmraft.estimation.snapshot import SnapshotBatch
 
 
-class NoiseParams(BaseModel):
-    """Noise parameters shared by the statistical detectors. None: take it from the snapshot."""
+class NoiseParams(LinkParams):
+    """Noise parameters shared by the statistical detectors (and the range screening,
+    `link_params.LinkParams`). None: take it from the snapshot."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 

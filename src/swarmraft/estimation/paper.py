@@ -13,17 +13,19 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from swarmraft.estimation.integrity import IntegrityParams, finish
+from swarmraft.estimation.link_params import LinkParams
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration, solve_ranges
 
 
-class PaperParams(BaseModel):
-    """Parameters of Algorithm 1. Defaults: the reference code (docs/models.md)."""
+class PaperParams(LinkParams):
+    """Parameters of Algorithm 1. Defaults: the reference code (docs/models.md); the range
+    screening (`links`) is off, as Algorithm 1 has none (``links = "screen"`` turns it on)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -41,6 +43,9 @@ class PaperParams(BaseModel):
     )
     tie: Literal["honest", "faulty"] = Field("honest", description="a zero vote sum counts as")
     min_anchors: int = Field(3, ge=1)
+    links: Literal["screen", "off"] = Field(
+        "off", description="screen the ranges first (links.screen): needs the snapshot's range_sigma"
+    )
     recovery: Literal["reference", "joint"] = Field(
         "reference",
         description="stage 2: the reference code's solver, or the joint estimate (closed-form "

@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from swarmraft.estimation.blas import one_blas_thread
+from swarmraft.estimation.links import run_screened
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
 DetectorFn = Callable[[SnapshotBatch, Any], VerdictBatch]
@@ -83,9 +84,11 @@ def detector_params(name: str, **params: Any) -> BaseModel:
 
 
 def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
+    """Verify a batch with a registered detector, on ranges screened for bad links first
+    where its parameters ask for it (`links.run_screened`)."""
     p = detector_params(detector, **params)
     with one_blas_thread():
-        return get_detector(detector).run(batch, p)
+        return run_screened(get_detector(detector).run, batch, p)
 
 
 def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:

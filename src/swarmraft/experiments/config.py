@@ -15,6 +15,7 @@ from swarmraft.estimation.registry import detector_params, one_line
 from swarmraft.world import (
     AreaSpoof,
     Attack,
+    DistanceEnlargement,
     ExactRanging,
     GNSSModel,
     Jump,
@@ -33,6 +34,8 @@ ATTACKS = (
     "collusion-2",
     "collusion-3",
     "area",
+    "enlarge",
+    "enlarge-jump",
 )
 
 
@@ -64,6 +67,9 @@ class RangingConfig(_Strict):
     max_range: float | None = Field(None, gt=0, description="no range beyond, m")
     nlos_prob: float = Field(0.0, ge=0, le=1)
     nlos_bias: tuple[float, float] = (0.3, 1.0)
+    nlos_mode: Literal["link", "direction"] = Field(
+        "link", description="NLOS bias drawn per link (both directions share it) or per direction"
+    )
     symmetric: bool = False
     shadowing_db: float = Field(6.0, ge=0, description="RSSI shadowing, dB")
     exponent: float = Field(2.5, gt=0, description="RSSI path-loss exponent")
@@ -72,7 +78,9 @@ class RangingConfig(_Strict):
         if self.kind == "exact":
             return ExactRanging(self.max_range)
         if self.kind == "uwb":
-            return UWBRanging(self.sigma, self.max_range, self.nlos_prob, self.nlos_bias, self.symmetric)
+            return UWBRanging(
+                self.sigma, self.max_range, self.nlos_prob, self.nlos_bias, self.symmetric, self.nlos_mode
+            )
         return RSSIRanging(self.shadowing_db, self.exponent, self.max_range, self.symmetric)
 
     @property
@@ -84,7 +92,9 @@ class AttackConfig(_Strict):
     """Which attack and its parameters. ``jump``: independent jumps (``box`` half width or
     ``shell`` low-high magnitude); ``range-tamper``: jumps plus ranges consistent with the
     fake reports; ``range-bias``: jumps plus a bias on the attackers' ranges;
-    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point."""
+    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point;
+    ``enlarge``: distance enlargement of ``enlarge_low``-``enlarge_high`` m per attacker (every
+    range it takes part in reads long), its GNSS honest; ``enlarge-jump``: the same plus jumps."""
 
     name: Literal[ATTACKS] = "jump"  # type: ignore[valid-type]
     jump: Literal["box", "shell"] = "box"
@@ -93,11 +103,15 @@ class AttackConfig(_Strict):
     high: float = Field(100.0, ge=0)
     bias: float = 5.0
     angle_deg: tuple[float, float] = (20.0, 90.0)
+    enlarge_low: float = Field(2.0, ge=0, description="distance enlargement per attacker, low end, m")
+    enlarge_high: float = Field(10.0, ge=0, description="distance enlargement per attacker, high end, m")
 
     @model_validator(mode="after")
     def _order(self) -> AttackConfig:
         if self.high < self.low:
             raise ValueError("high must be >= low")
+        if self.enlarge_high < self.enlarge_low:
+            raise ValueError("enlarge_high must be >= enlarge_low")
         return self
 
     def model(self) -> Attack:
@@ -110,6 +124,9 @@ class AttackConfig(_Strict):
             return Attack(jump, RangeTamper("bias", self.bias))
         if self.name == "area":
             return Attack(AreaSpoof(self.low, self.high))
+        if self.name.startswith("enlarge"):
+            delay = DistanceEnlargement(self.enlarge_low, self.enlarge_high)
+            return Attack(jump if self.name == "enlarge-jump" else None, enlargement=delay)
         return Attack(RigidCollusion(int(self.name[-1]), self.angle_deg))  # type: ignore[arg-type]
 
     @property

@@ -83,6 +83,9 @@ class RangingTimeConfig(_Strict):
     sigma: float = Field(0.10, ge=0)
     max_range: float | None = Field(None, gt=0)
     nlos_prob: float = Field(0.0, ge=0, le=1)
+    nlos_mode: Literal["link", "direction"] = Field(
+        "link", description="NLOS bias drawn per link (both directions share it) or per direction"
+    )
 
 
 class NetworkConfig(_Strict):
@@ -123,7 +126,7 @@ class ProtocolTimeConfig(_Strict):
 
 
 class SpoofConfig(_Strict):
-    kind: Literal["jump", "drag", "area", "collusion"]
+    kind: Literal["jump", "drag", "area", "collusion", "enlarge"]
     drones: list[int] = Field(min_length=1)
     start_s: float = Field(ge=0)
     end_s: float | None = None
@@ -132,6 +135,15 @@ class SpoofConfig(_Strict):
     pivots: list[int] = Field(default_factory=list)
     angle_deg: float = 45.0
     tamper_ranges: bool = False
+    enlarge: float = Field(
+        0.0, ge=0, description="distance enlargement, m: every range a victim takes part in reads this long"
+    )
+
+    @model_validator(mode="after")
+    def _enlarge(self) -> SpoofConfig:
+        if self.kind == "enlarge" and not self.enlarge > 0:
+            raise ValueError("enlarge: kind 'enlarge' needs enlarge > 0 (m)")
+        return self
 
 
 class OutageConfig(_Strict):

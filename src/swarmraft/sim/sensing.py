@@ -19,6 +19,7 @@ from swarmraft.estimation.calibration import calibrate
 from swarmraft.protocol import ProtocolConfig
 from swarmraft.sim.scenario import Scenario
 from swarmraft.world import GaussMarkov, UWBRanging
+from swarmraft.world.attacks import enlarge
 from swarmraft.world.ins import InsDrift, InsGrade, ins_grade, ins_sigma
 from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
 from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
@@ -75,12 +76,15 @@ class ScenarioWorld:
                 tuple(p - 1 for p in s.pivots),
                 s.angle_deg,
                 s.tamper_ranges,
+                s.enlarge,
             )
             for s in sc.spoof
         ]
         outages = [Outage(tuple(d - 1 for d in o.drones), o.start_s, o.end_s) for o in sc.outage]
         timeline = AttackTimeline.build(rng_att, spoofs, outages)
-        uwb = UWBRanging(sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob)
+        uwb = UWBRanging(
+            sc.ranging.sigma, sc.ranging.max_range, sc.ranging.nlos_prob, nlos_mode=sc.ranging.nlos_mode
+        )
         # In step order, as the simulator draws them (an area spoof fixes its point at its first step).
         fix, has_fix, spoofed = np.empty((S, n, 3)), np.empty((S, n), bool), np.empty((S, n), bool)
         ranges = np.empty((S, n, n))
@@ -145,10 +149,13 @@ class ScenarioWorld:
         return base_pos + moved + self.drift.error(t - base_t)
 
     def measured_ranges(self, k: int, ins: np.ndarray) -> np.ndarray:
-        """(n, n) step k's ranges, row i measured by drone i; a drone that tampers with its
-        ranges reports the distances its fake position (its fix, or ``ins`` (n, 3) without a
-        fix) implies."""
+        """(n, n) step k's ranges, row i measured by drone i, lengthened where a spoof enlarges
+        distances; a drone that tampers with its ranges reports the distances its fake
+        position (its fix, or ``ins`` (n, 3) without a fix) implies."""
         ranges = self.ranges[k].copy()
+        delay = self.timeline.enlargement(self.traj.t[k], self.sc.drones)
+        if delay.any():  # delayed replies: every range of an enlarging drone reads long
+            ranges = enlarge(ranges[None], delay[None])[0]
         tamper = self.timeline.tampering(self.traj.t[k])
         if tamper.size:
             shown = np.where(self.has_fix[k][:, None], self.fix[k], ins)

@@ -3,6 +3,7 @@
 from swarmraft.world.attacks import (
     AreaSpoof,
     Attack,
+    DistanceEnlargement,
     Jump,
     RangeTamper,
     RigidCollusion,
@@ -15,6 +16,7 @@ from swarmraft.world.ranging import ExactRanging, RSSIRanging, UWBRanging
 __all__ = [
     "AreaSpoof",
     "Attack",
+    "DistanceEnlargement",
     "ExactRanging",
     "GNSSModel",
     "GaussMarkov",

@@ -172,11 +172,41 @@ class RangeTamper:
 
 
 @dataclass(frozen=True)
+class DistanceEnlargement:
+    """Distance enlargement: each attacker delays its ranging replies (or its own timestamps),
+    so every range it takes part in reads long, in both directions of each of its links, as
+    two-way ranging does: by its enlargement, uniform in [low, high] m and drawn per attacker
+    and trial; a link between two attackers by the sum of theirs. Without secure ranging
+    (IEEE 802.15.4z STS) nothing in a range shows the delay; a range can be lengthened this
+    way but never shortened (the reply cannot come before the request)."""
+
+    low: float = 2.0
+    high: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.low <= self.high:
+            raise ValueError("DistanceEnlargement: need 0 <= low <= high")
+
+    def ranges(self, rng: np.random.Generator, ranges: np.ndarray, attackers: np.ndarray) -> np.ndarray:
+        delta = np.where(attackers, rng.uniform(self.low, self.high, size=attackers.shape), 0.0)
+        return enlarge(ranges, delta)
+
+
+def enlarge(ranges: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Ranges (..., n, n) with every range drone k takes part in lengthened by delta[..., k] m
+    (both directions; a link of two enlargers by both); the diagonal and nan stay as they are."""
+    n = ranges.shape[-1]
+    out = ranges + delta[..., :, None] + delta[..., None, :]
+    return np.where(np.eye(n, dtype=bool), ranges, out)
+
+
+@dataclass(frozen=True)
 class Attack:
-    """A position attack (or none) plus range tampering."""
+    """A position attack (or none) plus range tampering, plus distance enlargement (or none)."""
 
     position: PositionAttack | None = field(default_factory=Jump)
     range_tamper: RangeTamper = field(default_factory=RangeTamper)
+    enlargement: DistanceEnlargement | None = None
 
     def apply(
         self,
@@ -188,4 +218,7 @@ class Attack:
     ) -> tuple[np.ndarray, np.ndarray]:
         if self.position is not None:
             reported = self.position.reports(rng, truth, reported, attackers)
-        return reported, self.range_tamper.ranges(reported, ranges, attackers)
+        ranges = self.range_tamper.ranges(reported, ranges, attackers)
+        if self.enlargement is not None:
+            ranges = self.enlargement.ranges(rng, ranges, attackers)
+        return reported, ranges

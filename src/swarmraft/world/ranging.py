@@ -5,10 +5,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from swarmraft.world.geometry import true_distances
+
+NLOS_MODES = ("link", "direction")
 
 
 def _finish(d: np.ndarray, true: np.ndarray, max_range: float | None) -> np.ndarray:
@@ -45,17 +48,26 @@ class UWBRanging:
     """UWB two-way ranging: Gaussian noise sigma (default 0.10 m, docs/models.md; 0.05-0.15 m),
     with probability ``nlos_prob`` a positive NLOS bias uniform in ``nlos_bias`` (default
     +0.3 to +1 m), nothing beyond ``max_range`` (reliable to 50-100 m). ``symmetric``: i and j
-    share one measurement; otherwise each direction is measured independently."""
+    share one measurement; otherwise each direction is measured independently (its own
+    Gaussian noise).
+
+    ``nlos_mode``: ``"link"`` (default) draws the NLOS bias once per link and snapshot and adds
+    it to both directions, since it comes from the propagation path both directions of a
+    two-way range share; ``"direction"`` draws it per ordered pair (the model before links).
+    Each call (one snapshot, or each step of a mission) draws afresh: nothing persists."""
 
     sigma: float = 0.10
     max_range: float | None = None
     nlos_prob: float = 0.0
     nlos_bias: tuple[float, float] = (0.3, 1.0)
     symmetric: bool = False
+    nlos_mode: Literal["link", "direction"] = "link"
 
     def __post_init__(self) -> None:
         if self.sigma < 0:
             raise ValueError("UWB sigma must be >= 0")
+        if self.nlos_mode not in NLOS_MODES:
+            raise ValueError(f"UWB nlos_mode must be one of {', '.join(NLOS_MODES)}, got {self.nlos_mode!r}")
         if not 0 <= self.nlos_prob <= 1:
             raise ValueError("UWB nlos_prob must be in [0, 1]")
         lo, hi = self.nlos_bias
@@ -69,7 +81,11 @@ class UWBRanging:
         d = true + self.sigma * _pair_noise(rng, true.shape, self.symmetric)
         if self.nlos_prob > 0:
             hit = rng.random(true.shape) < self.nlos_prob
-            d = d + np.where(hit, rng.uniform(*self.nlos_bias, size=true.shape), 0.0)
+            bias = np.where(hit, rng.uniform(*self.nlos_bias, size=true.shape), 0.0)
+            if self.nlos_mode == "link":  # the upper triangle's draw, mirrored: one per link
+                bias = np.triu(bias, 1)
+                bias = bias + np.swapaxes(bias, 1, 2)
+            d = d + bias
         return _finish(d, true, self.max_range)
 
 

@@ -3,10 +3,12 @@
 Spoofs change a victim's GNSS fix from ``start`` to ``end`` (seconds; None = to the end):
 ``jump`` (a fixed offset of ``magnitude`` m in a random direction), ``drag`` (an offset
 growing at ``rate`` m/s in a random horizontal direction: covert drag-off), ``area`` (every
-victim reports the same point, ``magnitude`` m from the swarm centre at the start), and
+victim reports the same point, ``magnitude`` m from the swarm centre at the start),
 ``collusion`` (victims report a rigid rotation of their true positions about ``pivots`` honest
-drones). ``tamper_ranges`` makes the victims report their own ranges consistent with the
-fake positions. An outage (jamming) removes the fix of its drones from ``start`` to ``end``.
+drones), and ``enlarge`` (GNSS left honest). ``tamper_ranges`` makes the victims report their
+own ranges consistent with the fake positions; ``enlarge`` (m, with any kind) lengthens every
+range a victim takes part in by that much (distance enlargement: a delayed ranging reply).
+An outage (jamming) removes the fix of its drones from ``start`` to ``end``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from swarmraft.world.attacks import random_directions, rigid_motions
 
 @dataclass(frozen=True)
 class Spoof:
-    kind: Literal["jump", "drag", "area", "collusion"]
+    kind: Literal["jump", "drag", "area", "collusion", "enlarge"]
     drones: tuple[int, ...]  # 0-based indexes
     start: float
     end: float | None = None
@@ -30,6 +32,7 @@ class Spoof:
     pivots: tuple[int, ...] = ()
     angle_deg: float = 45.0
     tamper_ranges: bool = False
+    enlarge: float = 0.0
 
     def active(self, t: float) -> bool:
         return t >= self.start and (self.end is None or t < self.end)
@@ -80,6 +83,8 @@ class AttackTimeline:
                 out[idx] = fix[idx] + self.directions[k] * s.magnitude
             elif s.kind == "drag":
                 out[idx] = fix[idx] + self.directions[k] * s.rate * (t - s.start)
+            elif s.kind == "enlarge":
+                continue  # GNSS honest: only its ranges read long (`enlargement`)
             elif s.kind == "area":
                 if self.anchors[k] is None:
                     self.anchors[k] = truth.mean(axis=0) + self.directions[k][0] * s.magnitude
@@ -94,6 +99,14 @@ class AttackTimeline:
             if o.active(t):
                 has_fix[np.array(o.drones)] = False
         return out, has_fix, spoofed
+
+    def enlargement(self, t: float, n: int) -> np.ndarray:
+        """(n,) m by which the ranges each drone takes part in read long at time t."""
+        out = np.zeros(n)
+        for s in self.spoofs:
+            if s.active(t) and s.enlarge > 0:
+                out[np.array(s.drones)] += s.enlarge
+        return out
 
     def tampering(self, t: float) -> np.ndarray:
         """(n_spoofs) drones that tamper with their ranges at time t (indexes)."""

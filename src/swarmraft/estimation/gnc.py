@@ -68,18 +68,20 @@ def gnc_estimate(
     mu = np.maximum(2 * np.where(worst_r > worst_g, worst_r, worst_g), 1.0)
     active = np.arange(T)
     for _ in range(max_outer):
-        m = mu[active]
-        gw = geman_mcclure_weights(r2g[active], c_gnss**2, m[:, None])
-        rw = np.where(meas[active], geman_mcclure_weights(r2r[active], c_range**2, m[:, None, None]), 0.0)
-        rep, rng_ = reported[active], ranges[active]
-        xa = weighted_gauss_newton(x[active], rep, rng_, gw, rw, gnss_cov, range_sigma, iters=inner)
+        # while every trial is active (always, for a single snapshot), views instead of copies
+        sel = slice(None) if active.size == T else active
+        m = mu[sel]
+        gw = geman_mcclure_weights(r2g[sel], c_gnss**2, m[:, None])
+        rw = np.where(meas[sel], geman_mcclure_weights(r2r[sel], c_range**2, m[:, None, None]), 0.0)
+        rep, rng_ = reported[sel], ranges[sel]
+        xa = weighted_gauss_newton(x[sel], rep, rng_, gw, rw, gnss_cov, range_sigma, iters=inner)
         rg, rr = residuals(xa, rep, rng_, G_half, range_sigma)
-        x[active] = xa
-        r2g[active] = np.einsum("tni,tni->tn", rg, rg)
-        r2r[active] = np.where(meas[active], rr**2, 0.0)
+        x[sel] = xa
+        r2g[sel] = np.einsum("tni,tni->tn", rg, rg)
+        r2r[sel] = np.where(meas[sel], rr**2, 0.0)
         settled = m <= 1.0
         m = m / mu_factor
-        mu[active] = np.where(1.0 > m, 1.0, m)
+        mu[sel] = np.where(1.0 > m, 1.0, m)
         active = active[~settled]
         if not active.size:
             break

@@ -1,9 +1,11 @@
 """Every detector's verdicts on a fixed set of seeded trials are those of the reference file
-(tests/data/verdicts_small.npz, made with benchmarks/verdict_equivalence.py from the code
-before the step-time work): a change meant only to make a detector faster must leave its
-flags and statuses as they were and its positions and protection levels within 1e-9 m.
-A change meant to alter verdicts regenerates the file (the command is in
-benchmarks/verdict_equivalence.py) and says why in its commit."""
+(tests/data/verdicts_small.npz, made with benchmarks/verdict_equivalence.py; regenerated after
+the per-trial GNC fix, which changed 4 `joint` verdicts of its 2-trial batches: one `alarm` at
+n = 17, f = 8 is now `ok` with exactly the attackers flagged, three have another trusted set):
+a change meant only to make a detector faster must leave its flags and statuses as they were
+and its positions and protection levels within 1e-9 m. A change meant to alter verdicts
+regenerates the file (the command is in benchmarks/verdict_equivalence.py) and says why in its
+commit."""
 
 import sys
 from pathlib import Path

@@ -46,7 +46,13 @@ def gnc_estimate(
     Geman-McClure weights relaxed from nearly quadratic (large mu) to the true robust loss
     (mu = 1). ``c_gnss`` is the inlier bound on the whitened 3-D GNSS residual norm,
     ``c_range`` on the whitened range residual. Returns positions (T, n, 3), GNSS weights
-    (T, n) and range weights (T, n, n)."""
+    (T, n) and range weights (T, n, n).
+
+    Every trial has its own mu, started from its own largest residual, divided by
+    ``mu_factor`` each round down to 1; a trial stops (its positions, weights and residuals
+    no longer change) after its round at mu = 1, or after ``max_outer`` rounds. A trial's
+    answer therefore does not depend on the other trials of its batch: run alone (a leader
+    step) or in a sweep chunk of any size, it is the same bit for bit."""
     T, n, _ = reported.shape
     G_half = np.linalg.cholesky(np.linalg.inv(np.asarray(gnss_cov, float))).T
     meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
@@ -57,16 +63,28 @@ def gnc_estimate(
     )
     rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
     r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
-    mu = np.maximum(2 * max(r2g.max() / c_gnss**2, r2r.max() / c_range**2), 1.0)
+    worst_g, worst_r = r2g.max(axis=1) / c_gnss**2, r2r.max(axis=(1, 2)) / c_range**2
+    # np.where(b > a, b, a) and np.where(1 > m, 1, m): Python's max, nan included, per trial
+    mu = np.maximum(2 * np.where(worst_r > worst_g, worst_r, worst_g), 1.0)
+    active = np.arange(T)
     for _ in range(max_outer):
-        gnss_w = geman_mcclure_weights(r2g, c_gnss**2, mu)
-        range_w = np.where(meas, geman_mcclure_weights(r2r, c_range**2, mu), 0.0)
-        x = weighted_gauss_newton(x, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters=inner)
-        rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
-        r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
-        if mu <= 1.0:
+        # while every trial is active (always, for a single snapshot), views instead of copies
+        sel = slice(None) if active.size == T else active
+        m = mu[sel]
+        gw = geman_mcclure_weights(r2g[sel], c_gnss**2, m[:, None])
+        rw = np.where(meas[sel], geman_mcclure_weights(r2r[sel], c_range**2, m[:, None, None]), 0.0)
+        rep, rng_ = reported[sel], ranges[sel]
+        xa = weighted_gauss_newton(x[sel], rep, rng_, gw, rw, gnss_cov, range_sigma, iters=inner)
+        rg, rr = residuals(xa, rep, rng_, G_half, range_sigma)
+        x[sel] = xa
+        r2g[sel] = np.einsum("tni,tni->tn", rg, rg)
+        r2r[sel] = np.where(meas[sel], rr**2, 0.0)
+        settled = m <= 1.0
+        m = m / mu_factor
+        mu[sel] = np.where(1.0 > m, 1.0, m)
+        active = active[~settled]
+        if not active.size:
             break
-        mu = max(mu / mu_factor, 1.0)
     gnss_w = geman_mcclure_weights(r2g, c_gnss**2, 1.0)
     range_w = np.where(meas, geman_mcclure_weights(r2r, c_range**2, 1.0), 0.0)
     return x, gnss_w, range_w

@@ -140,21 +140,21 @@ def _mirror_kernel(
     T, n, _ = x.shape
     info = np.zeros((3, 3))
     cov = np.zeros((3, 3))
-    # the ridge of the per-drone inverse: far below the largest information in the batch
-    big = 0.0
-    for t in range(T):
-        for i in range(n):
-            _info(x[t], i, anchors[t, i], inv_s2, p_w if has_prior[t, i] else 0.0, info)
-            for a in range(3):
-                for b in range(3):
-                    big = max(big, abs(info[a, b]))
-    ridge = 1e-12 * max(big, 1.0)
     d = np.zeros(n)
     pos = np.zeros(3)
     refined = np.zeros(3)
     root = np.sqrt(threshold)
     for t in range(T):
         xt = x[t]
+        # the ridge of the per-drone inverse: far below the largest information in the trial
+        # (the trial's own, so its answer does not depend on the other trials of a batch)
+        big = 0.0
+        for i in range(n):
+            _info(xt, i, anchors[t, i], inv_s2, p_w if has_prior[t, i] else 0.0, info)
+            for a in range(3):
+                for b in range(3):
+                    big = max(big, abs(info[a, b]))
+        ridge = 1e-12 * max(big, 1.0)
         for i in range(n):
             if trusted[t, i]:
                 continue

@@ -61,12 +61,15 @@ def rival_sets(
     fits (`joint.residual_statistics` at x), if the caller has them."""
     if gnss_q is None:
         _, gnss_q, _, _ = residual_statistics(x, reported, ranges, trusted, noise)
-    k = min(swaps, int(trusted[rows].sum(axis=1).min())) if len(rows) else 0
-    worst = np.argsort(np.where(trusted, -gnss_q, np.inf), axis=1)[:, :k]  # (T, k)
+    rows = np.asarray(rows, dtype=int)
+    # per trial, up to ``swaps`` of its own trusted drones (not the batch's fewest)
+    k = np.minimum(swaps, trusted[rows].sum(axis=1))  # (len(rows),)
+    worst = np.argsort(np.where(trusted, -gnss_q, np.inf), axis=1)[:, :swaps]  # (T, <= swaps)
     t_idx, e_idx = np.nonzero(~trusted[rows])
-    owner = np.repeat(np.asarray(rows, dtype=int)[t_idx], k)
-    e_idx = np.repeat(e_idx, k)
-    out = worst[owner, np.tile(np.arange(k), t_idx.size)]
+    owner = np.repeat(rows[t_idx], k[t_idx])
+    e_idx = np.repeat(e_idx, k[t_idx])
+    rank = np.arange(owner.size) - np.repeat(np.cumsum(k[t_idx]) - k[t_idx], k[t_idx])
+    out = worst[owner, rank]
     B = owner.size
     sets = trusted[owner].copy()
     sets[np.arange(B), out] = False

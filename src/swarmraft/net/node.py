@@ -57,6 +57,7 @@ from swarmraft.raft import (
     Entry,
     EntryKind,
     Message,
+    MsgType,
     NotLeader,
     ProposalDropped,
     RaftConfig,
@@ -194,6 +195,14 @@ def _levels(x: np.ndarray | None) -> list | None:
     return ["inf" if np.isposinf(v) else None if not np.isfinite(v) else round(float(v), 4) for v in x]
 
 
+class _InThread:
+    """A node event run in the audit thread (`DroneHost._drive` awaits it; the node and the
+    drone are not touched meanwhile): stepping an append whose records the audit re-runs."""
+
+    def __init__(self, run: Callable[[], None]) -> None:
+        self.run = run
+
+
 #: The stop event's counter of what was sent, by the type sent.
 _NOT_DROPS = ("accepted", "pieces")  # the verifier's counters that are not drops
 _SENT_COUNTER = {Message: "sent_raft", Report: "sent_reports", wire.ReportAck: "sent_acks"}
@@ -262,6 +271,7 @@ class DroneHost:
         self._role: tuple[str, int] | None = None
         self._written: dict[int, str] = {}  # step -> record hash already in the step file
         self._verifying: asyncio.Future | None = None  # the leader's verification in its thread
+        self._stepping = False  # an append is being stepped (and audited) in the audit thread
         self._backlog: list[Report] = []  # reports that arrived meanwhile
         self._decide_later: list[int] = []
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
@@ -334,6 +344,8 @@ class DroneHost:
         self.transport = await UDPTransport.bind(*self.entry.bind_address, self._on_datagram)
         self._disk = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-disk")
         self._cpu = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-verify")
+        self._audit_pool = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-audit")
+        self._loop = loop
         self.storage = SQLiteStorage(self.storage_path, check_same_thread=False)
         self._read_written_steps()
         self._steps = self.steps_path.open("a")
@@ -404,6 +416,7 @@ class DroneHost:
             await self.transport.wait_closed()
             self._disk.shutdown(wait=True)
             self._cpu.shutdown(wait=True)
+            self._audit_pool.shutdown(wait=True)
             self._finish_event()
             if (k := getattr(self, "_begun", None)) is not None and k < self.sc.steps:
                 self._count_sent(k + 1)  # stopped mid-run: the datagrams of the step in progress
@@ -476,7 +489,14 @@ class DroneHost:
                 pending, self._pending = self._pending, []
                 for action in pending:
                     try:
-                        action()
+                        if isinstance(action, _InThread):
+                            self._stepping = True
+                            try:
+                                await loop.run_in_executor(self._audit_pool, action.run)
+                            finally:
+                                self._stepping = False
+                        else:
+                            action()
                     except Exception:
                         self.counters["internal_error"] += 1
                         _logger.exception("drone %d: a node event failed", self.id)
@@ -518,7 +538,7 @@ class DroneHost:
 
     def _apply_queued(self) -> None:
         """Apply the committed entries waiting in the queue, unless the drone is verifying."""
-        while self._to_apply and self._verifying is None:
+        while self._to_apply and self._verifying is None and not self._stepping:
             self._apply(self._to_apply.popleft())
 
     def _note_role(self) -> None:
@@ -559,7 +579,8 @@ class DroneHost:
         self._heard[got.sender] = time.monotonic()
         if isinstance(got.message, Message):
             m = got.message
-            self._push(lambda: self.node.step(m))
+            step = lambda: self.node.step(m)  # noqa: E731
+            self._push(_InThread(step) if self._audits(m) else step)
         elif isinstance(got.message, wire.ReportAck):
             self._acked.add(got.message.step)
         else:
@@ -848,6 +869,17 @@ class DroneHost:
         return data
 
     # -- the audit (docs/audit.md) ----------------------------------------------------------
+    def _audits(self, m: Message) -> bool:
+        """Whether stepping ``m`` re-runs the audit (an append with a record this drone has
+        not checked yet): it is then stepped in the audit thread, so the loop's timers (the
+        steps, the reports) and datagrams do not wait for the re-run (tens of ms)."""
+        audit = self.drone.audit
+        return (
+            audit is not None
+            and m.type == MsgType.APP
+            and any(e.kind == EntryKind.NORMAL and not audit.passed(e.data) for e in m.entries)
+        )
+
     def _validate(self, entry: Entry) -> bool:
         """The Raft node's validator (its drone's `Auditor.validate`): a refused record and a
         censorship finding are counted and logged; a censorship finding starts a forced
@@ -881,7 +913,8 @@ class DroneHost:
                 self.node.campaign(force=True)
 
         wait_s = self._depose_rng.uniform(0, 3 * self.swarm.tick_ms) / 1000
-        asyncio.get_running_loop().call_later(wait_s, self._push, depose)
+        # called in the audit thread: the timer is set on the loop's
+        self._loop.call_soon_threadsafe(self._loop.call_later, wait_s, self._push, depose)
 
     def compromise(self) -> None:
         """SIGUSR1: from now on this drone lies whenever it leads, as the scenario's

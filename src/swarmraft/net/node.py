@@ -812,6 +812,8 @@ class DroneHost:
         """The leader's verification of step k, in the verify thread (the detector takes tens
         of ms): until it returns, the drone is not touched (reports wait in a backlog, applying
         waits), so `SwarmDrone` is driven one call at a time, as in the simulator."""
+        if self._stopping:
+            return  # stopping: no new verification (its thread may be shut down already)
         if self._verifying is not None:
             self._decide_later.append(k)
             return

@@ -113,14 +113,9 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
     return sc
 
 
-#: A MsgApp's payload before its entries (docs/net.md, Raft message payload).
-APPEND_HEAD = 54
-
-
-def record_bytes_max(n: int) -> int:
-    """The most bytes one log entry holding a record of an n-drone swarm takes in a MsgApp:
-    the record with n signed reports, a prior and the leader's signature (docs/audit.md),
-    the entry's header, and room for the detector's name and parameters."""
+def entries_per_append(n: int) -> int:
+    """How many records of an n-drone swarm fit one MsgApp datagram (at most 64): a MsgApp
+    must fit `wire.MAX_PAYLOAD`. A record carries its n signed reports (docs/audit.md)."""
     z = np.zeros(n)
     report = Report(0, 0, np.zeros(3), "gnss", z, np.zeros(3), bytes(64))
     rec = StepRecord(
@@ -140,25 +135,8 @@ def record_bytes_max(n: int) -> int:
         reports=(report,) * n,
         signature=bytes(64),
     )
-    return len(rec.encode()) + 21 + 64 + 256  # entry header, room for names and parameters
-
-
-def entries_per_append(n: int) -> int:
-    """How many records of an n-drone swarm fit one MsgApp datagram (at most 64): a MsgApp
-    must fit `wire.MAX_PAYLOAD`. A record carries its n signed reports (docs/audit.md)."""
-    return max(1, min(64, (wire.MAX_PAYLOAD - APPEND_HEAD) // record_bytes_max(n)))
-
-
-def check_record_fits(n: int) -> None:
-    """One-line NodeConfigError when one record of an n-drone swarm cannot travel in a
-    datagram (from 76 drones: a record carries n reports of n ranges each)."""
-    size = record_bytes_max(n) + APPEND_HEAD
-    if size > wire.MAX_PAYLOAD:
-        raise NodeConfigError(
-            f"drones: a record of {n} drones takes up to {size} bytes, more than a datagram's "
-            f"{wire.MAX_PAYLOAD}; the networked runtime carries at most "
-            f"{max(k for k in range(1, n) if record_bytes_max(k) + APPEND_HEAD <= wire.MAX_PAYLOAD)}"
-        )
+    per_entry = len(rec.encode()) + 21 + 64 + 256  # entry header, room for names and parameters
+    return max(1, min(64, (wire.MAX_PAYLOAD - 54) // per_entry))
 
 
 def warm_up_detector(world: ScenarioWorld) -> None:
@@ -237,7 +215,6 @@ class DroneHost:
         keyring = Keyring(
             {self.index: SigningKey(seed)}, {i - 1: VerifyKey(publics[i]) for i in swarm.drones}
         )
-        check_record_fits(n)
         pc = self.sc.protocol
         # the audit (docs/audit.md), as the simulator's drones run it: this drone checks every
         # record before its Raft node takes it (the node's validator) or applies it

@@ -159,9 +159,7 @@ STATUS_LEGEND = (
     "log index; step: the last step it applied; now: the step the clock is at, of the steps; "
     "reach: peers heard from within the longest election timeout (a follower hears only its "
     "leader); quorum: a leader with those makes a majority, or a follower heard its leader; "
-    "dropped: datagrams its Verifier refused, by reason; audit: records its audit refused (at "
-    "append and at apply) and censorship findings, 'lies' on a drone told to lie (off: the "
-    "swarm does not audit; docs/audit.md)."
+    "dropped: datagrams its Verifier refused, by reason."
 )
 
 PEERS_LEGEND = (
@@ -179,12 +177,11 @@ def status_table(answers: Mapping[int, object]) -> tuple[Table, str]:
     t.add_column("reach", justify="right", no_wrap=True)
     t.add_column("quorum", no_wrap=True)
     t.add_column("dropped")
-    t.add_column("audit")
     for i, a in answers.items():
         addr = "{}:{}".format(*a.address)
         f = a.fields
         if f is None:
-            t.add_row(str(i), addr, f"[red]{a.problem}[/]", *[""] * 11)
+            t.add_row(str(i), addr, f"[red]{a.problem}[/]", *[""] * 10)
             continue
         dropped = ", ".join(f"{k} {v}" for k, v in sorted(f["dropped"].items())) or "none"
         quorum = "yes" if f["quorum"] else "[red]NO[/]"
@@ -202,20 +199,8 @@ def status_table(answers: Mapping[int, object]) -> tuple[Table, str]:
             f"{f['reachable_peers']}/{len(f['peers'])}",
             quorum,
             dropped,
-            _audit_cell(f.get("audit")),
         )
     return t, STATUS_LEGEND
-
-
-def _audit_cell(audit: Mapping[str, object] | None) -> str:
-    """A drone's audit counts in a status row (`net.node.DroneHost.audit_counts`)."""
-    if audit is None:
-        return "off"
-    refused = int(audit["refused_entries"]) + int(audit["refused_applies"])  # type: ignore[call-overload]
-    cell = f"refused {refused}, censorship {audit['censorship_findings']}"
-    if refused or audit["censorship_findings"]:
-        cell = f"[red]{cell}[/]"
-    return cell + (" [red]lies[/]" if audit.get("lying") else "")
 
 
 def peers_table(leader: int, fields: Mapping[str, object]) -> tuple[Table, str]:

@@ -4,6 +4,7 @@ kills the drone whose event file says it leads, of the highest term."""
 
 import json
 
+from swarmraft.net import localswarm
 from swarmraft.net.localswarm import LocalSwarm, needs_relay
 from swarmraft.sim.scenario import Scenario
 
@@ -29,6 +30,9 @@ class FakeProcess:
     def start(self):
         self.log.append("start")
         self.alive = True
+
+    def compromise(self):
+        self.log.append("compromise")
 
 
 class FakeRelay:
@@ -159,3 +163,21 @@ def test_join_and_leave_are_listed_as_not_applied_and_touch_no_process(tmp_path)
         for k in ("join", "leave")
     ]
     assert all(log == [] for log in run.logs.values())
+
+
+def test_lying_leader_tells_the_drone_that_leads_to_lie_and_no_other(tmp_path, monkeypatch):
+    lie = {"kind": "lying-leader", "at_s": 3, "mode": "move", "drone": 2, "offset_m": 5}
+    run = swarm_with(tmp_path, [lie])
+    assert not needs_relay(run.sc)  # a process fault: no relay needed
+    role_events(run, 1, ("leader", 1), ("follower", 2))
+    role_events(run, 4, ("leader", 2))
+    (act,) = run.actions()
+    assert act.run() == "leader 4 (term 2) compromised (SIGUSR1): lies (move drone 2)"
+    assert run.logs[4] == ["compromise"] and run.liar == 4
+    assert all(run.logs[i] == [] for i in (1, 2, 3, 5))
+    # no leader known: it waits LIE_WAIT_S for one, then says so
+    monkeypatch.setattr(localswarm, "LIE_WAIT_S", 0.2)
+    run = swarm_with(tmp_path / "b", [lie])
+    role_events(run, 2, ("candidate", 3))
+    assert run.actions()[0].run() == "lying-leader: no leader known within 0.2 s, nobody compromised"
+    assert not any(run.logs.values()) and run.liar is None

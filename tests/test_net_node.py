@@ -172,6 +172,12 @@ def test_five_drone_processes_commit_identical_records_and_survive_the_leader_ki
         assert stop["verifier"].get("internal_error", 0) == 0
         # the restarted drone's sequence numbers went on above its first run's: nothing refused
         assert stop["verifier"].get("too_old", 0) == 0 and stop["verifier"].get("replayed", 0) == 0
+        # the audit (on by default) refused nothing of honest leaders, found no censorship,
+        # also on the restarted drone that re-checked its log at apply (docs/audit.md)
+        audit = stop["audit"]
+        assert audit["refused_entries"] == audit["refused_applies"] == audit["censorship_findings"] == 0
+        found = [e for e in events(swarm.nodes_dir, i) if e["event"].startswith(("audit", "censorship"))]
+        assert not found, found[:3]
     g = gather_steps(swarm.nodes_dir, 5, 400, 0.1)
     assert g.all_identical and g.committed > 30
 

@@ -89,6 +89,8 @@ def test_status_of_a_running_swarm_and_of_a_killed_drone(tmp_path):
         assert {a["term"] for a in answers.values()} == {lead["term"]}
         assert all(a["leader"] == lead["drone"] and a["quorum"] for a in answers.values())
         assert all(a["commit"] > 5 and a["last_step"] >= 5 for a in answers.values())
+        # the audit is on (the default) and has refused nothing
+        assert all(a["audit"]["refused_entries"] == 0 and not a["audit"]["lying"] for a in answers.values())
         assert {p for p in lead["peers"]} == {str(i) for i in (1, 2, 3, 4) if i != lead["drone"]}
         assert all(p["match"] > 0 and p["state"] in ("probe", "replicate") for p in lead["peers"].values())
 

@@ -78,7 +78,10 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
     OUT/drone-<ID>.sqlite (a restart on the same file rejoins with its log), computes its own
     sensor readings from the swarm's scenario and seed, reports to the leader each step, and
     writes one JSON line per applied step to OUT/drone-<ID>.steps.jsonl and its starts, role
-    changes and final counters to OUT/drone-<ID>.events.jsonl.
+    changes and final counters to OUT/drone-<ID>.events.jsonl. With the scenario's
+    protocol.audit (the default) it checks every record of its leader before it takes it.
+    SIGUSR1 makes it lie whenever it leads, as the scenario's lying-leader fault says
+    (docs/audit.md).
     """
     import logging
 

@@ -140,6 +140,13 @@ class NodeProcess:
             self.proc.send_signal(signal.SIGCONT)
         self.paused = False
 
+    def compromise(self) -> None:
+        """SIGUSR1: the drone lies from now on whenever it leads (its scenario's lying-leader
+        fault, docs/audit.md)."""
+        if self.alive and not self.paused:
+            assert self.proc is not None
+            self.proc.send_signal(signal.SIGUSR1)
+
     def terminate(self) -> None:
         """SIGTERM (a clean stop); a paused process is resumed to receive it."""
         if self.alive:

@@ -29,6 +29,8 @@ from swarmraft.sim.scenario import Scenario
 
 #: How long after the scenario's end launch waits for the drones to stop by themselves.
 END_WAIT_S = 15.0
+#: How long a lying-leader fault waits for a leader to be known, if none is at its time.
+LIE_WAIT_S = 5.0
 
 RelayMode = Literal["auto", "on", "off"]
 
@@ -65,6 +67,7 @@ class LocalSwarm:
     events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
     interrupted: bool = False
+    liar: int | None = None  # the drone told to lie (lying-leader fault)
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)
@@ -122,6 +125,8 @@ class LocalSwarm:
                 who = [f.drone] if f.drone is not None else list(range(1, self.n + 1))
                 acts.append(Action(f.at_s, f.kind, lambda w=who, s=f.for_s: self._pause(w, s)))
                 acts.append(Action(f.at_s + f.for_s, "resume", lambda w=who: self._resume(w)))
+            elif f.kind == "lying-leader":
+                acts.append(Action(f.at_s, f.kind, self._compromise_leader))
             elif f.kind == "transfer-leader":
                 note = "transfer-leader: not applied (the drone processes take no commands; simulator only)"
                 acts.append(Action(f.at_s, f.kind, lambda n=note: n))
@@ -148,6 +153,23 @@ class LocalSwarm:
         if lead is None:
             return "crash-leader: no leader known, nothing killed"
         return self._kill(lead[0], f"leader {lead[0]} (term {lead[1]}) killed (SIGKILL)")
+
+    def _compromise_leader(self) -> str:
+        """The drone leading now (or, if none is known, the first known to lead within
+        LIE_WAIT_S) is told to lie (SIGUSR1, `net.node.DroneHost.compromise`)."""
+        lead = None
+        end = time.time() + LIE_WAIT_S
+        while lead is None and time.time() < end:
+            alive = [i for i, p in self.procs.items() if p.alive and not p.paused]
+            lead = current_leader(self.nodes_dir, alive)
+            if lead is None:
+                time.sleep(0.05)
+        if lead is None:
+            return f"lying-leader: no leader known within {LIE_WAIT_S:g} s, nobody compromised"
+        self.procs[lead[0]].compromise()
+        self.liar = lead[0]
+        f = next(f for f in self.sc.fault if f.kind == "lying-leader")
+        return f"leader {lead[0]} (term {lead[1]}) compromised (SIGUSR1): lies ({f.mode} drone {f.drone})"
 
     def _restart(self, drone: int) -> str:
         if self.procs[drone].alive:

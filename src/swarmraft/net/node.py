@@ -57,6 +57,7 @@ from swarmraft.raft import (
     Entry,
     EntryKind,
     Message,
+    MsgType,
     NotLeader,
     ProposalDropped,
     RaftConfig,
@@ -65,6 +66,7 @@ from swarmraft.raft import (
     Snapshot,
     SQLiteStorage,
 )
+from swarmraft.sim.lying import drops_report, falsify
 from swarmraft.sim.mission import MISSION_SNAPSHOTS
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.sim.sensing import ScenarioWorld
@@ -171,6 +173,14 @@ def _levels(x: np.ndarray | None) -> list | None:
     return ["inf" if np.isposinf(v) else None if not np.isfinite(v) else round(float(v), 4) for v in x]
 
 
+class _InThread:
+    """A node event run in the audit thread (`DroneHost._drive` awaits it; the node and the
+    drone are not touched meanwhile): stepping an append whose records the audit re-runs."""
+
+    def __init__(self, run: Callable[[], None]) -> None:
+        self.run = run
+
+
 #: The stop event's counter of what was sent, by the type sent.
 _NOT_DROPS = ("accepted", "pieces")  # the verifier's counters that are not drops
 _SENT_COUNTER = {Message: "sent_raft", Report: "sent_reports", wire.ReportAck: "sent_acks"}
@@ -205,7 +215,17 @@ class DroneHost:
         keyring = Keyring(
             {self.index: SigningKey(seed)}, {i - 1: VerifyKey(publics[i]) for i in swarm.drones}
         )
-        self.drone = SwarmDrone(self.index, self.world.protocol, keyring)
+        pc = self.sc.protocol
+        # the audit (docs/audit.md), as the simulator's drones run it: this drone checks every
+        # record before its Raft node takes it (the node's validator) or applies it
+        self.drone = SwarmDrone(
+            self.index, self.world.protocol, keyring, audit=pc.audit, censor=(pc.censor_k, pc.censor_m)
+        )
+        # the lying-leader fault: this drone lies from a SIGUSR1 on (`compromise`)
+        self._lie = next((f for f in self.sc.fault if f.kind == "lying-leader"), None)
+        self._lying = False
+        # when to campaign after a censorship finding (0-30 ms: `_censorship_found`)
+        self._depose_rng = random.Random(int.from_bytes(os.urandom(8)))
         self.raft_config = RaftConfig(
             id=drone_id,
             peers=tuple(i for i in sorted(swarm.drones) if i != drone_id),
@@ -228,6 +248,7 @@ class DroneHost:
         self._role: tuple[str, int] | None = None
         self._written: dict[int, str] = {}  # step -> record hash already in the step file
         self._verifying: asyncio.Future | None = None  # the leader's verification in its thread
+        self._stepping = False  # an append is being stepped (and audited) in the audit thread
         self._backlog: list[Report] = []  # reports that arrived meanwhile
         self._decide_later: list[int] = []
         self._reported: dict[int, list] = {}  # step -> the position this drone reported
@@ -300,6 +321,8 @@ class DroneHost:
         self.transport = await UDPTransport.bind(*self.entry.bind_address, self._on_datagram)
         self._disk = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-disk")
         self._cpu = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-verify")
+        self._audit_pool = ThreadPoolExecutor(1, thread_name_prefix=f"drone-{self.id}-audit")
+        self._loop = loop
         self.storage = SQLiteStorage(self.storage_path, check_same_thread=False)
         self._read_written_steps()
         self._steps = self.steps_path.open("a")
@@ -315,7 +338,12 @@ class DroneHost:
             # the drone's state from the stored snapshot; the node applies the tail after it
             if (snap := self.storage.snapshot()).index:
                 self._restore(snap)
-            self.node = RaftNode(self.raft_config, self.storage, random.Random(int.from_bytes(os.urandom(8))))
+            self.node = RaftNode(
+                self.raft_config,
+                self.storage,
+                random.Random(int.from_bytes(os.urandom(8))),
+                validate=self._validate if self.drone.audit is not None else None,
+            )
             # Above every sequence number an earlier run sent: microseconds of the wall clock
             # (a run sends a few hundred datagrams a second, far fewer than a million).
             self.signer = Signer(self.id, self.seed, first_seq=time.time_ns() // 1000)
@@ -340,6 +368,7 @@ class DroneHost:
             )
             for sig in (signal.SIGTERM, signal.SIGINT):
                 loop.add_signal_handler(sig, self.stop, sig.name)
+            loop.add_signal_handler(signal.SIGUSR1, self.compromise)
             driver = asyncio.create_task(self._drive())
             driver.add_done_callback(lambda t: t.cancelled() or t.exception() is None or self.stop("error"))
             self._schedule_ticks(loop)
@@ -358,12 +387,13 @@ class DroneHost:
             if self._verifying is not None:
                 await asyncio.wait([self._verifying])  # its callback applies what waited
         finally:
-            for sig in (signal.SIGTERM, signal.SIGINT):
+            for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1):
                 loop.remove_signal_handler(sig)
             self.transport.close()
             await self.transport.wait_closed()
             self._disk.shutdown(wait=True)
             self._cpu.shutdown(wait=True)
+            self._audit_pool.shutdown(wait=True)
             self._finish_event()
             if (k := getattr(self, "_begun", None)) is not None and k < self.sc.steps:
                 self._count_sent(k + 1)  # stopped mid-run: the datagrams of the step in progress
@@ -388,6 +418,7 @@ class DroneHost:
             if hasattr(self, "verifier")
             else {},
             reports_rejected=self.drone.rejected,
+            audit=self.audit_counts(),
             counters=dict(self.counters),
             **self._usage(),
             at_step_0=getattr(self, "_usage_at_step_0", None),
@@ -435,7 +466,14 @@ class DroneHost:
                 pending, self._pending = self._pending, []
                 for action in pending:
                     try:
-                        action()
+                        if isinstance(action, _InThread):
+                            self._stepping = True
+                            try:
+                                await loop.run_in_executor(self._audit_pool, action.run)
+                            finally:
+                                self._stepping = False
+                        else:
+                            action()
                     except Exception:
                         self.counters["internal_error"] += 1
                         _logger.exception("drone %d: a node event failed", self.id)
@@ -477,7 +515,7 @@ class DroneHost:
 
     def _apply_queued(self) -> None:
         """Apply the committed entries waiting in the queue, unless the drone is verifying."""
-        while self._to_apply and self._verifying is None:
+        while self._to_apply and self._verifying is None and not self._stepping:
             self._apply(self._to_apply.popleft())
 
     def _note_role(self) -> None:
@@ -487,12 +525,13 @@ class DroneHost:
             self._event("role", role=now[0], term=now[1], leader=self.node.lead)
 
     # -- network ----------------------------------------------------------------------------
-    def _send(self, to: int, obj: Message | Report | wire.ReportAck) -> None:
+    def _send(self, to: int, obj: Message | Report | wire.ReportAck, counter: str | None = None) -> None:
+        """``counter``: what the send counts as (default: by the type sent)."""
         addr = self.peers.get(to)
         if addr is None:
             self.counters["no_address"] += 1
             return
-        self.counters[_SENT_COUNTER[type(obj)]] += 1
+        self.counters[counter or _SENT_COUNTER[type(obj)]] += 1
         try:
             datagrams = self.signer.seal_all(obj)
         except wire.WireError as exc:
@@ -517,7 +556,8 @@ class DroneHost:
         self._heard[got.sender] = time.monotonic()
         if isinstance(got.message, Message):
             m = got.message
-            self._push(lambda: self.node.step(m))
+            step = lambda: self.node.step(m)  # noqa: E731
+            self._push(_InThread(step) if self._audits(m) else step)
         elif isinstance(got.message, wire.ReportAck):
             self._acked.add(got.message.step)
         else:
@@ -560,6 +600,23 @@ class DroneHost:
             "peers": peers,
             "dropped": {k: v for k, v in self.verifier.counters.items() if v and k not in _NOT_DROPS},
             "accepted": self.verifier.counters.get("accepted", 0),
+            "audit": self.audit_counts(),
+        }
+
+    def audit_counts(self) -> dict[str, Any] | None:
+        """The audit's counts (None when the swarm does not audit): records refused at append
+        and at apply, censorship findings, priors that could not be checked, falsified records
+        this drone proposed (a lying-leader fault), and whether it lies."""
+        audit = self.drone.audit
+        if audit is None:
+            return None
+        return {
+            "refused_entries": self.counters["audit_refused"],
+            "refused_applies": self.drone.refused_applies,
+            "censorship_findings": self.counters["censorship_findings"],
+            "unchecked_priors": audit.unchecked_priors,
+            "falsified_proposed": self.counters["falsified_proposed"],
+            "lying": self._lying,
         }
 
     def _has_quorum(self, reachable: int, n: int, window_s: float) -> bool:
@@ -669,11 +726,27 @@ class DroneHost:
         self._acked = {s for s in self._acked if s >= k - 2}
         if self._reports[k] is not None:
             self._deliver_report(self._reports[k])
+            if self.drone.audit is not None:
+                self._fan_out(self._reports[k])
+
+    def _fan_out(self, report: Report) -> None:
+        """The report to every other drone but the leader it went to, once (the audit's
+        censorship check, docs/audit.md; the simulator's `Mission._fan_out`). Unlike the
+        simulator's, a drone does not hold its own report for the check: it has it from the
+        start, and a leader whose loop ran late may well not have had it in time (the other
+        voters hold it, from this fan-out)."""
+        for peer in self.peers:
+            if peer != self._sent_to.get(report.step):
+                self._send(peer, report, counter="sent_fanout")
 
     def _retry(self, k: int) -> None:
         """At half the deadline, resend step k's report if the leader did not acknowledge it,
         or if the leader changed (or became known) since it was sent (as the simulator's
         missions do)."""
+        if self.drone.audit is not None:
+            # reports of step k arriving later are not timely for the censorship check: the
+            # leader has half a deadline more, and this resend, to get its own copy
+            self.drone.audit.close_step(k)
         report = self._reports.get(k)
         if self._late(k, self.sc.protocol.deadline_ms / 1000):
             return
@@ -686,6 +759,13 @@ class DroneHost:
         self._deliver_report(report)
 
     def _on_report(self, report: Report) -> None:
+        if self._lying and drops_report(self._lie, report):
+            self.counters["reports_censored"] += 1
+            return  # the lying leader drops the drone's reports (the simulator's Mission._receive)
+        if (audit := self.drone.audit) is not None:
+            audit.note_report(report)  # held for the censorship check (not touched by verify_step)
+            if self.node.role != Role.LEADER:
+                return  # a fanned-out report, or one for a leader this drone no longer is
         if self._verifying is not None:
             self._backlog.append(report)
             return
@@ -709,6 +789,8 @@ class DroneHost:
         """The leader's verification of step k, in the verify thread (the detector takes tens
         of ms): until it returns, the drone is not touched (reports wait in a backlog, applying
         waits), so `SwarmDrone` is driven one call at a time, as in the simulator."""
+        if self._stopping:
+            return  # stopping: no new verification (its thread may be shut down already)
         if self._verifying is not None:
             self._decide_later.append(k)
             return
@@ -728,11 +810,17 @@ class DroneHost:
             _logger.exception("drone %d: verification failed", self.id)
             rec = None
         if rec is not None:
-            data, step = rec.encode(), rec.step
+            step = rec.step
 
             def propose() -> None:
+                if self.node.role != Role.LEADER or self.node.term != rec.term:
+                    # deposed while verifying: a record of a term this drone no longer leads
+                    # is dropped, not forwarded (the new leader's followers would refuse it:
+                    # its term is not its entry's, docs/audit.md)
+                    self.counters["proposals_not_leader"] += 1
+                    return
                 try:
-                    self.node.propose(data)
+                    self.node.propose(self._seal(rec))
                 except NotLeader:
                     self.counters["proposals_not_leader"] += 1
                 except ProposalDropped as exc:  # too much uncommitted: the step is skipped
@@ -746,6 +834,85 @@ class DroneHost:
         later, self._decide_later = self._decide_later, []
         for k in later:
             self._decide(k)
+
+    def _seal(self, rec: StepRecord) -> bytes:
+        """The leader's record as proposed: signed when the swarm audits (`SwarmDrone.seal`),
+        falsified first if this drone lies (`sim.lying.falsify`, the simulator's lies)."""
+        if self.drone.audit is None:
+            return rec.encode()
+        lie = falsify(rec, self._lie) if self._lying else None
+        data = self.drone.seal(lie if lie is not None else rec)
+        if lie is not None:
+            self.counters["falsified_proposed"] += 1
+            self._event("falsified", step=rec.step, term=rec.term, record=record_hash(data))
+        return data
+
+    # -- the audit (docs/audit.md) ----------------------------------------------------------
+    def _audits(self, m: Message) -> bool:
+        """Whether stepping ``m`` re-runs the audit (an append with a record this drone has
+        not checked yet): it is then stepped in the audit thread, so the loop's timers (the
+        steps, the reports) and datagrams do not wait for the re-run (tens of ms)."""
+        audit = self.drone.audit
+        return (
+            audit is not None
+            and m.type == MsgType.APP
+            and any(e.kind == EntryKind.NORMAL and not audit.passed(e.data) for e in m.entries)
+        )
+
+    def _validate(self, entry: Entry) -> bool:
+        """The Raft node's validator (its drone's `Auditor.validate`): a refused record and a
+        censorship finding are counted and logged; a censorship finding starts a forced
+        election (a refused record starts one in Raft). The simulator's `Mission._validate`."""
+        audit = self.drone.audit
+        n_refused = len(audit.refused)
+        t0 = time.perf_counter()
+        ok = audit.validate(entry)
+        self._time("audit", t0)
+        if not ok:
+            step, reason = audit.refused[n_refused]
+            self.counters["audit_refused"] += 1
+            self._event("audit_refused", step=step, term=entry.term, index=entry.index, reason=reason)
+            _logger.warning("drone %d: refused the record of step %d: %s", self.id, step, reason)
+        term = audit.omission_term
+        why = audit.take_suspicion()
+        if why is not None:
+            self._censorship_found(why, term)
+        return ok
+
+    def _censorship_found(self, why: str, term: int) -> None:
+        """The leader of ``term`` censors: campaign after a random 0-30 ms unless the term
+        moved on meanwhile (every voter finds it on the same record; campaigning at once they
+        would split the vote, as `sim.mission` found)."""
+        self.counters["censorship_findings"] += 1
+        self._event("censorship", term=term, why=why)
+        _logger.warning("drone %d: the leader of term %d censors: %s", self.id, term, why)
+
+        def depose() -> None:
+            if self.node.term == term:
+                self.node.campaign(force=True)
+
+        wait_s = self._depose_rng.uniform(0, 3 * self.swarm.tick_ms) / 1000
+        # called in the audit thread: the timer is set on the loop's
+        self._loop.call_soon_threadsafe(self._loop.call_later, wait_s, self._push, depose)
+
+    def compromise(self) -> None:
+        """SIGUSR1: from now on this drone lies whenever it leads, as the scenario's
+        lying-leader fault says (`swarmraft launch` sends it to the leader at the fault's time)."""
+        if self._lie is None:
+            self.counters["compromise_ignored"] += 1
+            self._event("compromise_ignored", why="the scenario has no lying-leader fault")
+            return
+        if not self._lying:
+            self._lying = True
+            f = self._lie
+            self._event(
+                "compromised",
+                mode=f.mode,
+                drone=f.drone,
+                offset_m=f.offset_m,
+                role=str(self.node.role),
+                term=self.node.term,
+            )
 
     def _time(self, what: str, t0: float) -> None:
         ms = (time.perf_counter() - t0) * 1000
@@ -786,8 +953,11 @@ class DroneHost:
         self._applied_index = entry.index
         if entry.kind != EntryKind.NORMAL:  # a no-op, or a membership change: no record
             return
-        before = self.drone.state.last_step
+        before, refused = self.drone.state.last_step, self.drone.refused_applies
         rec = self.drone.apply(entry.data)
+        if self.drone.refused_applies > refused:
+            step, reason = self.drone.audit.refused[-1]
+            self._event("audit_refused_apply", step=step, index=entry.index, reason=reason)
         if rec is None:
             return
         now = time.time()

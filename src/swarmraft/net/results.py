@@ -119,7 +119,57 @@ def launch_log(
     with np.errstate(invalid="ignore"):
         log.latency_ms = np.where(np.isfinite(first_apply), (first_apply - step_start) * 1000, np.nan)
     log.status = log.status.astype(str)
+    if sc.protocol.audit:
+        log.audit = audit_summary(nodes_dir, n, start_unix_s)
     return log
+
+
+def audit_summary(nodes_dir: Path, n: int, start_unix_s: float) -> dict:
+    """The audit's counts over a networked run's drones, as the simulator's
+    (`sim.mission.Mission.audit_summary`), from their event and step files: the liar is the
+    drone told to lie (its ``compromised`` event); refused entries, refused applies and
+    censorship findings are the other drones'; ``unchecked_priors`` sums their stop events
+    (a SIGKILLed drone has none); ``falsified_applied`` counts the step-file rows of drones
+    other than the liar that hold a record the liar falsified (the invariant: 0);
+    ``compromised_s``, when the liar was told to lie, and ``other_leader_s``, when a drone
+    other than the liar first led after that (the liar replaced).
+    Times are seconds after step 0."""
+    evs = {d: read_jsonl(drone_file(nodes_dir, d, "events.jsonl")) for d in range(1, n + 1)}
+    marks = sorted((e["t"], d) for d in evs for e in evs[d] if e["event"] == "compromised")
+    liar = marks[0][1] if marks else None
+    lies = [e for e in evs.get(liar, []) if e["event"] == "falsified"]
+    falsified = {e["record"] for e in lies}
+    honest = [d for d in evs if d != liar]
+
+    def times(kind: str) -> list[float]:
+        return sorted(round(e["t"] - start_unix_s, 3) for d in honest for e in evs[d] if e["event"] == kind)
+
+    refusals, findings = times("audit_refused"), times("censorship")
+    stops = [e.get("audit") or {} for d in honest for e in evs[d] if e["event"] == "stop"]
+    applied = sum(
+        r.get("record") in falsified
+        for d in honest
+        for r in read_jsonl(drone_file(nodes_dir, d, "steps.jsonl"))
+        if r["committed"]
+    )
+    first_lie = min((e["t"] for e in lies), default=None)
+    since = marks[0][0] if marks else None
+    led = [e["t"] for d in honest for e in evs[d] if e["event"] == "role" and e.get("role") == "leader"]
+    after = [t for t in led if since is not None and t >= since]
+    return {
+        "refused_entries": len(refusals),
+        "refused_applies": len(times("audit_refused_apply")),
+        "censorship_findings": len(findings),
+        "unchecked_priors": sum(s.get("unchecked_priors", 0) for s in stops),
+        "falsified_proposed": len(lies),
+        "falsified_applied": applied,
+        "liar": liar,
+        "first_lie_s": None if first_lie is None else round(first_lie - start_unix_s, 3),
+        "first_refusal_s": refusals[0] if refusals else None,
+        "first_finding_s": findings[0] if findings else None,
+        "compromised_s": None if since is None else round(since - start_unix_s, 3),
+        "other_leader_s": round(min(after) - start_unix_s, 3) if after else None,
+    }
 
 
 def _note_row(log: MissionLog, k: int, row: dict) -> None:

@@ -17,6 +17,7 @@ from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.protocol.drone import RecordMemo
 from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
+from swarmraft.sim.lying import drops_report, falsify
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario
@@ -325,7 +326,7 @@ class Mission:
         rep = Report.decode(data)
         drone = self.drones[node - 1]
         lie = self._lie
-        if self._lying and node == self.liar and lie.mode == "censor" and rep.drone == lie.drone - 1:
+        if self._lying and node == self.liar and drops_report(lie, rep):
             return  # the lying leader drops the drone's reports
         if drone.audit is not None:
             drone.audit.note_report(rep)
@@ -421,7 +422,7 @@ class Mission:
             return
         if self._lying and self.liar is None:
             self.liar = lead  # the fault takes the first leader after its time
-        lie = self._falsify(rec) if self._lying and lead == self.liar else None
+        lie = falsify(rec, self._lie) if self._lying and lead == self.liar else None
         data = drone.seal(lie if lie is not None else rec)
         if lie is not None:
             self.falsified[hashlib.sha256(data).digest()] = k
@@ -429,21 +430,6 @@ class Mission:
                 self.first_lie_s = self.cluster.now / 1000
                 self.log.events.append((self.first_lie_s, f"leader {lead} proposed a falsified record"))
         self.cluster.propose(data, via=lead)
-
-    def _falsify(self, rec: StepRecord) -> StepRecord | None:
-        """The lying leader's record (None where the mode changes nothing: clearing a drone
-        that is not flagged, accusing one that is; censoring is done on receipt)."""
-        f = self._lie
-        d = f.drone - 1
-        if f.mode == "move":
-            pos = rec.positions.copy()
-            pos[d] = np.where(np.isfinite(pos[d]), pos[d], 0.0) + [f.offset_m or 10.0, 0.0, 0.0]
-            return replace(rec, positions=pos)
-        if f.mode in ("clear", "accuse") and bool(rec.faulty[d]) == (f.mode == "clear"):
-            flags = rec.faulty.copy()
-            flags[d] = f.mode == "accuse"
-            return replace(rec, faulty=flags)
-        return None
 
     def _validate(self, node: int, entry: Entry) -> bool:
         """Node's validator (its drone's audit); a refusal and a censorship finding are logged,

@@ -730,13 +730,13 @@ class DroneHost:
                 self._fan_out(self._reports[k])
 
     def _fan_out(self, report: Report) -> None:
-        """The report to every other drone but the leader it went to, once (the audit's
-        censorship check, docs/audit.md; the simulator's `Mission._fan_out`). Unlike the
-        simulator's, a drone does not hold its own report for the check: it has it from the
-        start, and a leader whose loop ran late may well not have had it in time (the other
-        voters hold it, from this fan-out)."""
-        for peer in self.peers:
-            if peer != self._sent_to.get(report.step):
+        """The report to every other voter but the leader it went to, once (the audit's
+        censorship check, docs/audit.md; the simulator's `Mission._fan_out`: only voters can
+        depose a leader). Unlike the simulator's, a drone does not hold its own report for the
+        check: it has it from the start, and a leader whose loop ran late may well not have
+        had it in time (the other voters hold it, from this fan-out)."""
+        for peer in self.node.conf_state.voters:
+            if peer in self.peers and peer != self._sent_to.get(report.step):
                 self._send(peer, report, counter="sent_fanout")
 
     def _retry(self, k: int) -> None:

@@ -8,13 +8,15 @@ the leader's snapshot), each drone's Raft log in its own SQLite file (synchronou
 benchmark measures sizes, not fsyncs), the invariant checker off (it keeps a hash of every
 entry: a test harness, not part of a drone). Sampled every ``--sample-h`` hours and at the
 end: the process's peak and current RSS, the SQLite files' total size, the Raft entries held
-by all drones, and what the mission log itself keeps per step (``node_records``: one (step,
-digest) per drone per step, for the summary's identical-records check).
+by all drones, and the items the mission's identical-records check holds
+(`sim.agreement.RecordAgreement`: the steps some drone can still apply, bounded by the Raft
+logs).
 
 Target: peak RSS and SQLite size at the end within 10 % of their value at 1 hour. The world
 (trajectories, GNSS, ranges) and the mission log's per-step arrays are allocated for the
-whole flight before it starts: they are in the 1-hour figure already; the table shows their
-size (``preallocated``) so growth can be told apart.
+whole flight before it starts, every page written (resident) from the start: they are in the
+1-hour figure already; the first line gives their size (``preallocated``). At the end: each
+measure's growth from 1 h to the last sample, in total and per hour.
 
 Run: .venv/bin/python benchmarks/bench_endurance.py [--hours 10] [--sample-h 1]
      .venv/bin/python benchmarks/bench_endurance.py --short   (0.3 h, sampled every 0.1 h)
@@ -68,7 +70,6 @@ def scenario(hours: float) -> Scenario:
 def sample(m: Mission, folder: Path, k: int, t0: float) -> dict[str, float]:
     c = m.cluster
     held = sum(st.last_index() - st.first_index() + 1 for st in c.storage.values())
-    records = sum(len(r) for r in m.log.node_records.values())
     return {
         "sim_h": round(k * m.sc.dt_s / 3600, 3),
         "wall_s": round(time.perf_counter() - t0, 1),
@@ -79,19 +80,9 @@ def sample(m: Mission, folder: Path, k: int, t0: float) -> dict[str, float]:
         "last_index": max(n.log.last_index() for n in c.nodes.values() if n is not None),
         "snapshots_taken": c.snapshots_taken,
         "snapshots_installed": c.snapshots_installed,
-        "mission_node_records": records,
-        "mission_node_records_mb": round(node_records_bytes(m) / 2**20, 1),
+        "agreement_held": m.log.agreement.held(),
+        "agreement_open_steps": len(m.log.agreement.open),
     }
-
-
-def node_records_bytes(m: Mission) -> int:
-    """Bytes the mission log's ``node_records`` lists hold (lists, tuples, steps, digests)."""
-    total = 0
-    for recs in m.log.node_records.values():
-        total += sys.getsizeof(recs)
-        for rec in recs:
-            total += sys.getsizeof(rec) + sys.getsizeof(rec[0]) + sys.getsizeof(rec[1])
-    return total
 
 
 def preallocated_mb(m: Mission) -> float:
@@ -119,6 +110,8 @@ def main() -> None:
             check_invariants=False,
             storage=lambda i: SQLiteStorage(folder / f"drone-{i}.db", synchronous="OFF"),
         )
+        start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        print(f"started {start}, load average {' '.join(Path('/proc/loadavg').read_text().split()[:3])}")
         print(
             f"built the {hours:g} h world in {time.perf_counter() - t0:.0f} s; "
             f"preallocated arrays (world and mission log): {preallocated_mb(m)} MB",
@@ -132,30 +125,36 @@ def main() -> None:
             nonlocal k
             k += 1
             if k % per == 0:
-                samples.append(sample(m, folder, k, t0))
-                print(json.dumps(samples[-1]), flush=True)
+                keep(sample(m, folder, k, t0))
+
+        def keep(s: dict[str, float]) -> None:
+            samples.append(s)
+            print(json.dumps(s), flush=True)
+            if a.json:  # after every sample: a run stopped early keeps what it measured
+                out = {"hours": hours, "start": start, "samples": samples}
+                a.json.write_text(json.dumps(out, indent=2) + "\n")
 
         m.run(progress)
-        samples.append(sample(m, folder, k, t0))
-        print(json.dumps(samples[-1]), flush=True)
-        if a.json:
-            a.json.write_text(json.dumps({"hours": hours, "samples": samples}, indent=2) + "\n")
+        keep(sample(m, folder, k, t0))
+    report(samples, every_h)
+
+
+def report(samples: list[dict[str, float]], every_h: float) -> None:
+    """Each measure at 1 h (or the first sample) and at the last one: the growth against the
+    target, and per hour."""
     first = next((s for s in samples if s["sim_h"] >= min(1.0, every_h) - 1e-9), samples[0])
     last = samples[-1]
-    for key in ("peak_rss_mb", "sqlite_mb"):
+    hours = last["sim_h"] - first["sim_h"]
+    for key in ("peak_rss_mb", "rss_mb", "sqlite_mb", "raft_entries_held", "agreement_held"):
         ratio = last[key] / first[key] - 1
-        verdict = "within" if ratio <= TARGET else "OVER"
+        per_h = (last[key] - first[key]) / hours if hours > 0 else float("nan")
+        verdict = ""
+        if key in ("peak_rss_mb", "sqlite_mb"):
+            verdict = f" ({'within' if ratio <= TARGET else 'OVER'} the {TARGET:.0%} target)"
         print(
             f"{key}: {first[key]} at {first['sim_h']} h, {last[key]} at {last['sim_h']} h: "
-            f"{ratio:+.1%} ({verdict} the {TARGET:.0%} target)"
+            f"{ratio:+.1%}, {per_h:+.3g} per hour{verdict}"
         )
-    grown = last["rss_mb"] - first["rss_mb"]
-    log_grown = last["mission_node_records_mb"] - first["mission_node_records_mb"]
-    print(
-        f"RSS grew {grown:.1f} MB from {first['sim_h']} h to {last['sim_h']} h, of which the mission "
-        f"log's node_records {log_grown:.1f} MB; peak RSS without that growth: "
-        f"{(last['peak_rss_mb'] - log_grown) / first['peak_rss_mb'] - 1:+.1%}"
-    )
 
 
 if __name__ == "__main__":

@@ -270,12 +270,6 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
     n, S = sc.drones, len(log.t)
     spoof_ever = log.spoofed.any(axis=0)
     honest = ~spoof_ever
-    # every node's records agree on the steps both applied
-    digests: dict[int, str] = {}
-    agree = True
-    for recs in log.node_records.values():
-        for step, d in recs:
-            agree &= digests.setdefault(step, d) == d
     committed = int(log.committed.sum())
     per_step_min = 2 * (n - 1)
     detections = [_spoof_detection(log, errors, k, d) for k, sp in enumerate(sc.spoof) for d in sp.drones]
@@ -328,7 +322,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "committed_steps": committed,
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),
-        "records_identical_on_all_nodes": bool(agree),
+        "records_identical_on_all_nodes": log.agreement.identical,
         "bound_note": BOUND_NOTE,
         "sustained_detection_s": SUSTAIN_S,
         "honest_error_gnss_m": _mean(errors["gnss"][:, honest]),

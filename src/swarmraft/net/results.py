@@ -5,7 +5,7 @@ layers take it from there).
 What the world determines (truth, GNSS, spoofing, outages, INS alone) comes from the scenario
 as each drone computed it (`sim.mission.world_log`); what the swarm did comes from the drones'
 files (docs/net.md): the committed records (the first drone's line for each step; every
-drone's record hash goes to ``node_records`` so disagreement shows), the position each drone
+drone's record hash goes to the log's ``agreement`` so disagreement shows), the position each drone
 reported, the leader of each record's term (from the role events), the latency from a step's
 start to the first drone applying its record, the datagrams sent per step (``sent.csv``), and
 whether each process was up (its start and stop events, and the times launch SIGKILLed it).
@@ -101,7 +101,8 @@ def launch_log(
             first_apply[k] = min(first_apply[k], row["applied_unix_s"])
             if not log.committed[k]:
                 _note_row(log, k, row)
-        log.node_records[d] = sorted(recs)
+        for k, digest in sorted(recs):
+            log.agreement.note(d, k, digest)
         sent = drone_file(nodes_dir, d, "sent.csv")
         if sent.exists():
             with sent.open(newline="") as f:

@@ -16,6 +16,7 @@ from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.raft import Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
+from swarmraft.sim.agreement import RecordAgreement
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario
@@ -52,11 +53,20 @@ class MissionLog:
     raft_messages: np.ndarray  # (S,) Raft messages sent during the step
     report_messages: np.ndarray  # (S,) reports sent during the step
     refused_proposals: int = 0  # records a leader refused (its cap on uncommitted bytes)
-    node_records: dict[int, list[tuple[int, str]]] = field(default_factory=dict)  # node -> (step, digest)
+    # every record each drone applied, checked for identical digests per step (bounded)
+    agreement: RecordAgreement = field(default_factory=RecordAgreement)
     events: list[tuple[float, str]] = field(default_factory=list)
     ins_sigma_window: float = 0.0
     detector_params: dict = field(default_factory=dict)  # as used (calibrated thresholds included)
     audit: dict = field(default_factory=dict)  # the audit's counts (`Mission.audit_summary`)
+
+
+def resident_zeros(shape: int | tuple[int, ...], dtype: type) -> np.ndarray:
+    """Zeros with every page written now: a large ``np.zeros`` maps untouched zero pages that
+    only take memory as the run writes its steps, so a long mission's memory would creep up
+    by its per-step arrays; written up front, they are all in the first measurement and the
+    mission's memory stays flat after it (bench_endurance.py)."""
+    return np.full(shape, 0, dtype)
 
 
 def world_log(w: ScenarioWorld) -> MissionLog:
@@ -75,14 +85,14 @@ def world_log(w: ScenarioWorld) -> MissionLog:
         reported=nan3.copy(),
         ins_alone=nan3.copy(),
         ins_aligned=nan3.copy(),
-        spoofed=np.zeros((S, n), bool),
-        outage=np.zeros((S, n), bool),
-        alive=np.zeros((S, n), bool),
-        leader=np.zeros(S, int),
-        term=np.zeros(S, int),
+        spoofed=resident_zeros((S, n), bool),
+        outage=resident_zeros((S, n), bool),
+        alive=resident_zeros((S, n), bool),
+        leader=resident_zeros(S, int),
+        term=resident_zeros(S, int),
         **no_records(S, n),
-        raft_messages=np.zeros(S, int),
-        report_messages=np.zeros(S, int),
+        raft_messages=resident_zeros(S, int),
+        report_messages=resident_zeros(S, int),
         ins_sigma_window=ins_sigma(w.grade, sc.protocol.innovation_window_s),
     )
     for k in range(S):
@@ -110,6 +120,10 @@ def ins_aligned_in_outages(log: MissionLog, drift: InsDrift) -> None:
 #: for 9 drones), keeping 500 below the snapshot (50 s: a drone down for less catches up with
 #: appends, as it always did; one down longer gets the leader's snapshot).
 MISSION_SNAPSHOTS = SnapshotPolicy(every=1000, keep=500)
+
+#: How often (in steps) the mission closes the steps no drone can apply any more
+#: (`RecordAgreement.prune`): between two, at most this many more steps are held.
+AGREEMENT_PRUNE_STEPS = 100
 
 #: ``on_step(log, k)``: called once step k's interval has passed (its deadline too), with a
 #: live copy of the mission log (see `Mission`); it must only read.
@@ -433,7 +447,7 @@ class Mission:
         rec = self.drones[i].apply(entry.data)
         if rec is None:
             return
-        self.log.node_records.setdefault(node, []).append((rec.step, rec.digest))
+        self.log.agreement.note(node, rec.step, rec.digest, entry.index)
         now = self.cluster.now
         # A step's record goes into the log when it is first applied (every node applies the
         # same: tests check digests), with its latency; nothing per step is kept besides.
@@ -542,10 +556,36 @@ class Mission:
         return self._finish()
 
     def _step_with_history(self, k: int) -> None:
+        if k % AGREEMENT_PRUNE_STEPS == 0:
+            self.log.agreement.prune(self._can_apply())
         self._rows = {s: r for s, r in self._rows.items() if s >= k - 2}
         # a step's retry needs its ranges row: acknowledgements of older steps are not read
         self._acked = {a for a in self._acked if a[1] >= k - 2}
         self._step(k)
+
+    def _can_apply(self) -> Callable[[int, int], bool]:
+        """Whether some drone can still apply a record of a step from the entry at an index:
+        a live drone any record above its last step, and after a crash (which may come at any
+        time) any entry of its storage above its snapshot; a drone that is down, an entry
+        above its snapshot that its storage holds, or that a live drone's storage holds (to
+        be sent when it is back). An entry no storage holds reaches nobody (a restarted or
+        lagging drone gets a snapshot instead)."""
+        c = self.cluster
+        live: list[tuple[int, int]] = []  # (last step applied, snapshot index)
+        down: list[tuple[int, int]] = []  # (snapshot index, last index held)
+        for node, st in c.storage.items():
+            if c.alive(node):
+                live.append((self.drones[node - 1].state.last_step, st.snapshot().index))
+            else:
+                down.append((st.snapshot().index, st.last_index()))
+        live_first = min((c.storage[i].first_index() for i in c.alive_ids()), default=float("inf"))
+
+        def can_apply(step: int, index: int) -> bool:
+            return any(step > last or index > snap for last, snap in live) or any(
+                snap < index and (index <= last or index >= live_first) for snap, last in down
+            )
+
+        return can_apply
 
     def _finish(self) -> MissionLog:
         log = self.log
@@ -571,9 +611,9 @@ def no_records(S: int, n: int) -> dict[str, np.ndarray]:
         "verified": np.full((S, n, 3), np.nan),
         "hpl": np.full((S, n), np.nan),
         "vpl": np.full((S, n), np.nan),
-        "faulty": np.zeros((S, n), bool),
-        "missing": np.zeros((S, n), bool),
-        "committed": np.zeros(S, bool),
+        "faulty": resident_zeros((S, n), bool),
+        "missing": resident_zeros((S, n), bool),
+        "committed": resident_zeros(S, bool),
         "status": np.full(S, "skipped", dtype=object),
         "latency_ms": np.full(S, np.nan),
     }

@@ -13,10 +13,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
+from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.raft import Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.agreement import RecordAgreement
+from swarmraft.sim.memo import BoundedMemo
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario
@@ -194,8 +196,9 @@ class Mission:
         self.calibration = w.calibration
         self.pcfg = w.protocol
         self.keys = Keyring.generate(n, w.rng_keys)
-        # the evidence checks depend only on a record's bytes: drones share them (docs/audit.md)
-        self._audit_cache: dict = {}
+        # the evidence checks depend only on a record's bytes: drones share them (docs/audit.md);
+        # the reports and records of the last KEEP_STEPS steps or so (older ones are checked again)
+        self._audit_cache: dict = BoundedMemo(KEEP_STEPS * (n + 2))
         self.drones = [self._new_drone(i) for i in range(n)]
         # the report fan-out's own generator: it must not shift the draws of the rest of the run
         self._fan_rng = random.Random(sc.seed * 7_919 + 17)

@@ -2,6 +2,7 @@
 different record, and what it holds stays bounded however long the mission."""
 
 import dataclasses
+import json
 
 import pytest
 
@@ -102,11 +103,12 @@ def test_the_summary_finds_a_drone_that_applied_a_different_record(monkeypatch):
 
 def test_a_restarted_drone_replaying_a_different_record_is_found(monkeypatch):
     """The replayed step was applied by every drone long before: the check must still hold it
-    (drone 2's storage keeps it above its snapshot while it is down)."""
+    (drone 2's storage keeps it above its snapshot while it is down). Drone 2 is down at the
+    prunes of steps 200 and 300, when every live drone has snapshotted past its log's tail."""
     changed = _lying_replay(monkeypatch, 2)
     sc = scenario(
-        40.0,
-        fault=[{"kind": "crash", "drone": 2, "at_s": 14.0}, {"kind": "restart", "drone": 2, "at_s": 30.0}],
+        45.0,
+        fault=[{"kind": "crash", "drone": 2, "at_s": 14.0}, {"kind": "restart", "drone": 2, "at_s": 36.0}],
     )
     log = Mission(sc, snapshots=SMALL).run()
     assert changed, "drone 2 replayed no record after its restart"
@@ -137,9 +139,43 @@ def test_what_the_check_holds_stays_flat_in_a_long_mission():
     assert log.agreement.identical and log.committed.sum() > 1400
     assert sum(log.agreement.applied.values()) > 6000
     after_warm_up = [held[k] for k in range(300, len(held))]
-    # bounded by the logs: a live drone's log holds at most every + keep entries above its
-    # snapshot (150 steps), a drone down for 300 steps holds its own tail; plus a prune's period
-    bound = 2 * (SMALL.every + SMALL.keep) + AGREEMENT_PRUNE_STEPS + 20
+    # bounded by the logs: the live drones' logs (every + keep entries: 150 steps), the tail
+    # above its snapshot that the drone down for 300 steps holds (up to every + keep), and
+    # what was applied since the last prune (AGREEMENT_PRUNE_STEPS); measured: 457 at most
+    bound = 3 * (SMALL.every + SMALL.keep) + AGREEMENT_PRUNE_STEPS
     assert max(after_warm_up) <= bound, max(after_warm_up)
     # flat: the last third holds no more than the second
     assert max(held[k] for k in range(1000, len(held))) <= max(held[k] for k in range(300, 1000))
+
+
+def test_a_networked_run_with_a_differing_record_says_so(tmp_path):
+    """`net.results.launch_log` feeds every drone's step file into the same check."""
+    from swarmraft.net.results import launch_log
+    from swarmraft.net.swarmfile import drone_file
+    from swarmraft.sim.sensing import ScenarioWorld
+
+    world = ScenarioWorld.build(Scenario(name="net", drones=4, duration_s=1.0, seed=2))
+    for d in (1, 2, 3, 4):
+        rows = []
+        for k in range(world.sc.steps + 1):
+            digest = "b" * 32 if (d, k) == (2, 4) else f"{k:032d}"
+            rows.append(
+                {
+                    "step": k,
+                    "reported": [0.0, 0.0, 0.0],
+                    "committed": True,
+                    "record": digest,
+                    "applied_unix_s": 100.0 + 0.1 * k + 0.01,
+                    "status": "ok",
+                    "term": 1,
+                    "positions": [[0.0, 0.0, 0.0]] * 4,
+                    "faulty": [],
+                    "missing": [],
+                }
+            )
+        drone_file(tmp_path, d, "steps.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        drone_file(tmp_path, d, "events.jsonl").write_text(json.dumps({"t": 99.0, "event": "start"}) + "\n")
+    log = launch_log(world, tmp_path, 100.0, [])
+    assert [(x.step, x.node, x.digest) for x in log.agreement.disagreements] == [(4, 2, "b" * 32)]
+    assert log.agreement.applied == {1: 11, 2: 11, 3: 11, 4: 11} and log.agreement.checked == 33
+    assert summarize(log, error_series(log))["records_identical_on_all_nodes"] is False

@@ -21,14 +21,16 @@ measure's growth from 1 h to the last sample, in total and per hour.
 Measured (2026-11-28): ``PYTHONPATH=src .venv/bin/python benchmarks/bench_endurance.py --hours 2
 --sample-h 0.1 --json FILE``, started 01:28 UTC (stepping from 01:42) at load average 27 (13-28
 during the run: 2 cores shared with other sessions); the 2 h world took 840 s to build, then
-100-1150 s of wall time per 0.1 simulated hour; stopped for the session's report after the
-0.8 h sample, so neither 10 h nor the 1-hour reference was reached. From 0.1 h to 0.8 h
-(samples every 0.1 h): peak RSS 523.9, 524.6, 524.6, 524.9, 524.9, 524.9, 524.9, 524.9 MB
-(+1.4 MB per simulated hour, +0.2 %); SQLite 117.8, 119.0, 119.2, 119.4, 119.6, 119.9, 120.0,
-120.1 MB (+3.3 MB per hour, +2.0 %; WAL files included); Raft entries held 6,279-13,473, up
-and down with each snapshot; the identical-records check's open steps 198-998 while every
-drone is up, 1,299 and 1,899 with drone 4 down (from 0.6 h: its log's tail stays open until
-it is back at 0.8 h). Before (2026-11-27, ``--hours 2.5 --sample-h 0.5``, load 10-18): peak
+75-1150 s of wall time per 0.1 simulated hour; stopped for the session's report after the
+1.2 h sample (10 h out of reach at this load). Samples every 0.1 h from 0.1 to 1.2 h: peak RSS
+523.9, 524.6, 524.6, 524.9 (0.4-0.8 h), 526.2 (0.9-1.2 h) MB; SQLite 117.8, 119.0, 119.2,
+119.4, 119.6, 119.9, 120.0, 120.1, 120.3, 120.4 (1 h), 120.4, 120.4 MB (WAL files included).
+From 1 h to 1.2 h: peak RSS 526.2 -> 526.2 MB (+0.0 %), SQLite 120.36 -> 120.41 MB (+0.05 %),
+within the target over the 0.2 h measured; from 0.1 h: +2.1 MB of peak RSS per simulated hour.
+Raft entries held 6,279-13,473, up and down with each snapshot; the identical-records check's
+open steps 198-1,002 while every drone is up, 1,299 and 1,899 with drone 4 down (0.6-0.8 h:
+its log's tail stays open until it is back; it caught up by 1 InstallSnapshot).
+Before (2026-11-27, ``--hours 2.5 --sample-h 0.5``, load 10-18): peak
 RSS +65 MB per simulated hour, 54 MB of it the mission log's ``node_records``.
 
 Run: .venv/bin/python benchmarks/bench_endurance.py [--hours 10] [--sample-h 1]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import struct
-from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -27,6 +26,7 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
+from swarmraft.protocol.memo import BoundedMemo
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
@@ -271,8 +271,7 @@ class RecordMemo:
     leader's record is a modified copy, `sim.mission`)."""
 
     def __init__(self, size: int = 64) -> None:
-        self.size = size
-        self._held: OrderedDict[bytes, StepRecord] = OrderedDict()
+        self._held: BoundedMemo = BoundedMemo(size)
         self.hits = 0
 
     def get(self, key: bytes) -> StepRecord | None:
@@ -294,8 +293,6 @@ class RecordMemo:
 
     def put(self, key: bytes, rec: StepRecord) -> None:
         self._held[key] = rec
-        while len(self._held) > self.size:
-            self._held.popitem(last=False)
 
 
 def record_inputs_key(

@@ -16,11 +16,11 @@ from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.protocol.drone import RecordMemo
+from swarmraft.protocol.memo import BoundedMemo
 from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.agreement import RecordAgreement
 from swarmraft.sim.lying import drops_report, falsify
-from swarmraft.sim.memo import BoundedMemo
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.runtime import Cluster
 from swarmraft.sim.scenario import Scenario

@@ -158,6 +158,44 @@ def robust_estimate(
             ),
             np.inf,
         )
+        if rows.size:
+            # the mixed answer's own reflection, every untrusted drone across its anchors'
+            # plane at once: when no start reached either side cleanly, the other side of the
+            # plane is among no start's minima, and two equally good minima apart would pass
+            # for one
+            Xf, cf, okf = weighted_gauss_newton(
+                mirrored(x[rows], ranges[rows], trusted[rows]),
+                reported[rows],
+                ranges[rows],
+                gnss_w[rows],
+                range_w[rows],
+                noise.gnss_cov,
+                noise.range_sigma,
+                iters,
+                prior=None if pr is None else pr[rows],
+                prior_sigma=prior_sigma,
+                full=True,
+            )
+            X = np.concatenate([X, np.full((1, T, n, 3), np.nan)])
+            X[-1, rows] = Xf
+            conv = np.concatenate([conv, np.isin(t, rows[okf])[None]])
+            cost = np.concatenate([cost, np.full((1, T), np.inf)])
+            cost[-1, rows] = cf
+            q = np.concatenate([q, np.full((1, T, n), np.inf)])
+            q[-1, rows] = np.where(
+                okf[:, None],
+                _own_cost(
+                    _placed(anchors[rows], Xf, trusted[rows]),
+                    ranges[rows],
+                    trusted[rows],
+                    noise.range_sigma,
+                    None if pr is None else pr[rows],
+                    prior_sigma,
+                ),
+                np.inf,
+            )
+            won = okf & (cf < c[rows])
+            x[rows[won]], c[rows[won]], ok[rows[won]] = Xf[won], cf[won], True
     far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
     with np.errstate(invalid="ignore"):
         apart = np.linalg.norm(X - x[None], axis=3) > far

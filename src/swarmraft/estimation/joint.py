@@ -28,11 +28,55 @@ def _geometry(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def residuals(
     x: np.ndarray, reported: np.ndarray, ranges: np.ndarray, G_half: np.ndarray, range_sigma: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened GNSS residuals (T, n, 3) and range residuals (T, n, n) at positions x."""
-    rg = np.einsum("ij,tnj->tni", G_half, x - reported)
-    dist, _ = _geometry(x)
-    rr = np.where(np.isnan(ranges), 0.0, (dist - np.nan_to_num(ranges)) / range_sigma)
+    """Whitened GNSS residuals (T, n, 3) and range residuals (T, n, n) at positions x (0 where
+    a range is nan). One compiled kernel: it is called a dozen times per leader step, where
+    numpy's per-call overhead on these small arrays was most of its time."""
+    T, n, _ = x.shape
+    rg = np.empty((T, n, 3))
+    rr = np.empty((T, n, n))
+    _residuals_kernel(
+        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(reported, float),
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(G_half, float),
+        float(range_sigma),
+        rg,
+        rr,
+    )
     return rg, rr
+
+
+@njit(cache=True)
+def _residuals_kernel(x, reported, ranges, G_half, range_sigma, rg, rr):  # pragma: no cover
+    """`residuals` in place on rg, rr, in numpy's order of operations (bit for bit the
+    einsum and nan_to_num expression it replaced: an infinite range counts as +-DBL_MAX)."""
+    T, n, _ = x.shape
+    big = np.finfo(np.float64).max
+    for t in range(T):
+        for i in range(n):
+            e0 = x[t, i, 0] - reported[t, i, 0]
+            e1 = x[t, i, 1] - reported[t, i, 1]
+            e2 = x[t, i, 2] - reported[t, i, 2]
+            for a in range(3):
+                rg[t, i, a] = G_half[a, 0] * e0 + G_half[a, 1] * e1 + G_half[a, 2] * e2
+            for j in range(n):
+                d = ranges[t, i, j]
+                if np.isnan(d):
+                    rr[t, i, j] = 0.0
+                    continue
+                if np.isinf(d):
+                    d = big if d > 0 else -big
+                rr[t, i, j] = (_einsum_distance(x[t], i, j) - d) / range_sigma
+
+
+@njit(cache=True)
+def _einsum_distance(xt, i, j):  # pragma: no cover - compiled
+    """|x_i - x_j| summed as numpy's einsum sums three squares, (d0^2 + d2^2) + d1^2 (its
+    two-lane loop), so a kernel gives the bits the einsum expression it replaced gave."""
+    d0 = xt[i, 0] - xt[j, 0]
+    d1 = xt[i, 1] - xt[j, 1]
+    d2 = xt[i, 2] - xt[j, 2]
+    return np.sqrt((d0 * d0 + d2 * d2) + d1 * d1)
 
 
 @njit(cache=True)

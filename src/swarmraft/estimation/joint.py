@@ -224,6 +224,28 @@ def _levenberg_marquardt_kernel(
         conv_out[t] = conv
 
 
+_INFORMATION: dict[bytes, np.ndarray] = {}
+
+
+def _information(gnss_cov: np.ndarray) -> np.ndarray:
+    """gnss_cov^-1 (3, 3), memoised by the covariance's bytes (a detector has one or two)."""
+    key = gnss_cov.tobytes()
+    G = _INFORMATION.get(key)
+    if G is None:
+        if len(_INFORMATION) >= 64:
+            _INFORMATION.clear()
+        G = _INFORMATION[key] = np.linalg.inv(gnss_cov)  # read only (the kernel does not write it)
+    return G
+
+
+def _dense(w: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Weights ``w`` as a C-contiguous float array of ``shape`` (broadcast only if needed)."""
+    w = np.asarray(w)
+    if w.shape != shape:
+        w = np.broadcast_to(w, shape)
+    return np.ascontiguousarray(w, float)
+
+
 def weighted_gauss_newton(
     x0: np.ndarray,
     reported: np.ndarray,
@@ -247,17 +269,18 @@ def weighted_gauss_newton(
     cost (T,) and whether each problem converged (T,)."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
-    G = np.linalg.inv(np.asarray(gnss_cov, float))
+    G = _information(np.asarray(gnss_cov, float))
     has_prior = prior is not None and prior_sigma is not None and prior_sigma > 0
-    prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.full((T, n, 3), np.nan)
+    # without a prior the kernel never reads it (its weight is 0)
+    prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.empty((T, n, 3))
     cost = np.zeros(T)
     conv = np.zeros(T, dtype=np.bool_)
     _levenberg_marquardt_kernel(
         x,
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
-        np.ascontiguousarray(np.broadcast_to(gnss_w, (T, n)), float),
-        np.ascontiguousarray(np.broadcast_to(range_w, (T, n, n)), float),
+        _dense(gnss_w, (T, n)),
+        _dense(range_w, (T, n, n)),
         G,
         1.0 / range_sigma**2,
         int(iters),

@@ -66,13 +66,14 @@ def _residuals_kernel(x, reported, ranges, G_half, range_sigma, rg, rr):  # prag
                     continue
                 if np.isinf(d):
                     d = big if d > 0 else -big
-                rr[t, i, j] = (_einsum_distance(x[t], i, j) - d) / range_sigma
+                rr[t, i, j] = (pair_distance(x[t], i, j) - d) / range_sigma
 
 
 @njit(cache=True)
-def _einsum_distance(xt, i, j):  # pragma: no cover - compiled
-    """|x_i - x_j| summed as numpy's einsum sums three squares, (d0^2 + d2^2) + d1^2 (its
-    two-lane loop), so a kernel gives the bits the einsum expression it replaced gave."""
+def pair_distance(xt, i, j):  # pragma: no cover - compiled
+    """|x_i - x_j| (compiled) summed as numpy's einsum sums three squares, (d0^2 + d2^2) + d1^2
+    (its two-lane loop), so a kernel gives the bits of ``np.sqrt(np.einsum("tijk,tijk->tij",
+    diff, diff))``, the expression the kernels replaced."""
     d0 = xt[i, 0] - xt[j, 0]
     d1 = xt[i, 1] - xt[j, 1]
     d2 = xt[i, 2] - xt[j, 2]

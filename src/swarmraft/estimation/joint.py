@@ -34,7 +34,7 @@ def residuals(
     T, n, _ = x.shape
     rg = np.empty((T, n, 3))
     rr = np.empty((T, n, n))
-    _residuals_kernel(
+    residuals_kernel(
         np.ascontiguousarray(x, float),
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
@@ -47,7 +47,7 @@ def residuals(
 
 
 @njit(cache=True)
-def _residuals_kernel(x, reported, ranges, G_half, range_sigma, rg, rr):  # pragma: no cover
+def residuals_kernel(x, reported, ranges, G_half, range_sigma, rg, rr):  # pragma: no cover
     """`residuals` in place on rg, rr, in numpy's order of operations (bit for bit the
     einsum and nan_to_num expression it replaced: an infinite range counts as +-DBL_MAX)."""
     T, n, _ = x.shape
@@ -159,7 +159,7 @@ def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # p
 
 
 @njit(cache=True)
-def _levenberg_marquardt_kernel(
+def levenberg_marquardt_kernel(
     x, reported, ranges, gnss_w, range_w, G, inv_s2, iters, tol, prior, prior_w, cost_out, conv_out
 ):  # pragma: no cover - compiled
     """Problem by problem, in place on x (T, n, 3): Levenberg-Marquardt with step acceptance.
@@ -276,7 +276,7 @@ def weighted_gauss_newton(
     prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.empty((T, n, 3))
     cost = np.zeros(T)
     conv = np.zeros(T, dtype=np.bool_)
-    _levenberg_marquardt_kernel(
+    levenberg_marquardt_kernel(
         x,
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from swarmraft.estimation.gnc import geman_mcclure_weights, gnc_estimate
+from swarmraft.estimation.integrity import _eigenvalues, _unfixed
 from swarmraft.estimation.joint import residuals, weighted_gauss_newton
 from swarmraft.estimation.robust import _own_cost
 
@@ -145,3 +146,42 @@ def test_gnc_kernel_is_the_numpy_loop() -> None:
         got = gnc_estimate(rep, d, cov, 0.1, **kw)
         for w, g in zip(want, got, strict=True):
             same(w, g)
+
+
+def unfixed_reference(C, largest0, max_condition):
+    """`integrity.assess`'s test before `_unfixed`: eigenvalues of every block."""
+    ev = _eigenvalues(C)
+    big0 = np.broadcast_to(largest0, ev.shape[:-1])
+    return (ev[..., 2] > max_condition * np.maximum(ev[..., 0], 1e-300)) | (
+        ev[..., 2] > 1e6 * np.maximum(big0, 1e-300)
+    )
+
+
+def test_unfixed_decides_as_the_eigenvalues_do() -> None:
+    """Blocks with eigenvalues from e^-20 to e^20, some negative or zero (indefinite,
+    singular), not exactly symmetric, some with inf or nan entries (upper triangle too),
+    against several max_condition: the bound skips most eigenvalue problems and decides
+    every block as they do."""
+    rng = np.random.default_rng(0)
+    skipped = total = 0
+    for k in range(600):
+        m = int(rng.integers(1, 50))
+        Q = np.linalg.qr(rng.normal(size=(m, 3, 3)))[0]
+        lam = np.exp(rng.uniform(-20, 20, (m, 1, 3)))
+        lam *= rng.choice([1, 1, 1, -1], (m, 1, 3)) * rng.choice([1, 0], (m, 1, 3), p=[0.95, 0.05])
+        if k % 2:
+            lam = np.exp(rng.uniform(0, 4, (m, 1, 3)))  # well conditioned: the common case
+        C = (Q * lam) @ np.swapaxes(Q, 1, 2)
+        C += rng.normal(0, 1e-14, C.shape) * np.abs(C).max()
+        if k % 10 == 0:
+            C[rng.integers(m)] = np.inf
+        if k % 13 == 0:
+            C[rng.integers(m), 0, 1] = np.nan
+        l0 = np.exp(rng.uniform(-25, 25, m)) if k % 3 else np.full(m, 1e3)
+        mc = float(rng.choice([1e6, 1e3, 10.0, 1e9]))
+        with np.errstate(all="ignore"):
+            want, got = unfixed_reference(C, l0, mc), _unfixed(C, l0, mc)
+        np.testing.assert_array_equal(want, got)
+        total += m
+        skipped += int((~want).sum())
+    assert skipped > total // 3  # the test saw many fixed blocks, not only unfixed ones

@@ -12,7 +12,7 @@ import pytest
 from swarmraft.estimation.gnc import geman_mcclure_weights, gnc_estimate
 from swarmraft.estimation.integrity import _eigenvalues, _unfixed
 from swarmraft.estimation.joint import residuals, weighted_gauss_newton
-from swarmraft.estimation.robust import _own_cost
+from swarmraft.estimation.robust import _own_cost, anchor_planes
 
 
 def _distances(x: np.ndarray) -> np.ndarray:
@@ -185,3 +185,29 @@ def test_unfixed_decides_as_the_eigenvalues_do() -> None:
         total += m
         skipped += int((~want).sum())
     assert skipped > total // 3  # the test saw many fixed blocks, not only unfixed ones
+
+
+def anchor_planes_reference(x, ranges, trusted):
+    n = x.shape[1]
+    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+    w = anchors.astype(float)
+    cnt = w.sum(axis=2)
+    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
+    dev = x[:, None, :, :] - mean[:, :, None, :]
+    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    return anchors, cnt, mean, vec
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_anchor_planes_kernel_is_the_numpy_expression(seed: int) -> None:
+    for k, b in enumerate(batches(seed)):
+        x = b["x"].copy()
+        if k % 4 == 0:
+            x[..., 2] *= 1e-3  # a flat layer: the plane's normal is well defined
+        want = anchor_planes_reference(x, b["ranges"], b["trusted"])
+        got = anchor_planes(x, b["ranges"], b["trusted"])
+        np.testing.assert_array_equal(want[0], got[0])
+        same(want[1], got[1])
+        same(want[2], got[2])
+        # principal axes: the same LAPACK routine on the same matrix (up to sign elsewhere)
+        np.testing.assert_allclose(np.abs(want[3]), np.abs(got[3]), rtol=0, atol=1e-9)

@@ -238,15 +238,50 @@ def anchor_planes(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For every drone i, its anchors (T, i, k): trusted drones k that measured a range to
     it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
-    ascending order of spread (column 0: the normal of their best-fit plane)."""
-    n = x.shape[1]
+    ascending order of spread (column 0: the normal of their best-fit plane). One compiled
+    kernel (numpy's per-call overhead on 17-drone arrays was most of its time)."""
+    T, n, _ = x.shape
     anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
-    w = anchors.astype(float)
-    cnt = w.sum(axis=2)
-    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
-    dev = x[:, None, :, :] - mean[:, :, None, :]  # (T, i, k, 3)
-    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    cnt, mean, vec = np.empty((T, n)), np.empty((T, n, 3)), np.empty((T, n, 3, 3))
+    _anchor_planes_kernel(np.ascontiguousarray(x, float), np.ascontiguousarray(anchors), cnt, mean, vec)
     return anchors, cnt, mean, vec
+
+
+@njit(cache=True)
+def _anchor_planes_kernel(x, anchors, cnt, mean, vec):  # pragma: no cover - compiled
+    """`anchor_planes`' count, centroid and axes, in the order of operations of the numpy
+    expressions it replaced (einsum's sums over the anchors in order, then
+    np.linalg.eigh, the same LAPACK routine), so bit for bit the same."""
+    T, n, _ = x.shape
+    S = np.empty((3, 3))
+    for t in range(T):
+        for i in range(n):
+            c = 0.0
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for k in range(n):
+                w = 1.0 if anchors[t, i, k] else 0.0
+                c += w
+                m0 += w * x[t, k, 0]
+                m1 += w * x[t, k, 1]
+                m2 += w * x[t, k, 2]
+            cnt[t, i] = c
+            div = max(c, 1.0)
+            mean[t, i, 0] = m0 / div
+            mean[t, i, 1] = m1 / div
+            mean[t, i, 2] = m2 / div
+            for a in range(3):
+                for b in range(3):
+                    S[a, b] = 0.0
+            for k in range(n):
+                w = 1.0 if anchors[t, i, k] else 0.0
+                for a in range(3):
+                    da = x[t, k, a] - mean[t, i, a]
+                    for b in range(3):
+                        S[a, b] += w * da * (x[t, k, b] - mean[t, i, b])
+            _, v = np.linalg.eigh(S)
+            vec[t, i] = v
 
 
 def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from swarmraft.estimation.joint import (
     residuals_kernel,
     weighted_gauss_newton,
 )
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whitener
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
@@ -61,7 +61,6 @@ def gnc_estimate(
     answer therefore does not depend on the other trials of its batch: run alone (a leader
     step) or in a sweep chunk of any size, it is the same bit for bit."""
     T, n, _ = reported.shape
-    G_half = np.linalg.cholesky(np.linalg.inv(np.asarray(gnss_cov, float))).T
     meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
     x = weighted_gauss_newton(
         reported,
@@ -79,8 +78,8 @@ def gnc_estimate(
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
         meas,
-        np.ascontiguousarray(G_half),
-        np.linalg.inv(np.asarray(gnss_cov, float)),
+        gnss_whitener(gnss_cov),
+        gnss_information(gnss_cov),
         float(range_sigma),
         float(c_gnss) ** 2,
         float(c_range) ** 2,

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 from scipy.special import chdtri
 
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.noise import NoiseModel, gnss_information
 from swarmraft.estimation.trust_region import linear_multilateration
 
 
@@ -225,20 +225,6 @@ def levenberg_marquardt_kernel(
         conv_out[t] = conv
 
 
-_INFORMATION: dict[bytes, np.ndarray] = {}
-
-
-def _information(gnss_cov: np.ndarray) -> np.ndarray:
-    """gnss_cov^-1 (3, 3), memoised by the covariance's bytes (a detector has one or two)."""
-    key = gnss_cov.tobytes()
-    G = _INFORMATION.get(key)
-    if G is None:
-        if len(_INFORMATION) >= 64:
-            _INFORMATION.clear()
-        G = _INFORMATION[key] = np.linalg.inv(gnss_cov)  # read only (the kernel does not write it)
-    return G
-
-
 def _dense(w: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """Weights ``w`` as a C-contiguous float array of ``shape`` (broadcast only if needed)."""
     w = np.asarray(w)
@@ -270,7 +256,7 @@ def weighted_gauss_newton(
     cost (T,) and whether each problem converged (T,)."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
-    G = _information(np.asarray(gnss_cov, float))
+    G = gnss_information(gnss_cov)
     has_prior = prior is not None and prior_sigma is not None and prior_sigma > 0
     # without a prior the kernel never reads it (its weight is 0)
     prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.empty((T, n, 3))

@@ -13,6 +13,7 @@ from swarmraft.estimation.gnc import geman_mcclure_weights, gnc_estimate
 from swarmraft.estimation.integrity import _eigenvalues, _unfixed
 from swarmraft.estimation.joint import residuals, weighted_gauss_newton
 from swarmraft.estimation.robust import _own_cost, anchor_planes
+from swarmraft.estimation.trust_region import linear_multilateration
 
 
 def _distances(x: np.ndarray) -> np.ndarray:
@@ -211,3 +212,32 @@ def test_anchor_planes_kernel_is_the_numpy_expression(seed: int) -> None:
         same(want[2], got[2])
         # principal axes: the same LAPACK routine on the same matrix (up to sign elsewhere)
         np.testing.assert_allclose(np.abs(want[3]), np.abs(got[3]), rtol=0, atol=1e-9)
+
+
+def multilateration_reference(anchors, dists, mask):
+    w = mask.astype(float)
+    cnt = np.maximum(w.sum(axis=1), 1.0)
+    d2 = np.where(mask, dists, 0.0) ** 2
+    a2 = np.einsum("bmk,bmk->bm", anchors, anchors)
+    a_bar = np.einsum("bm,bmk->bk", w, anchors) / cnt[:, None]
+    rhs = (d2 - a2) - (np.einsum("bm,bm->b", w, d2 - a2) / cnt)[:, None]
+    A = -2 * (anchors - a_bar[:, None, :]) * w[..., None]
+    rhs = rhs * w
+    AtA = np.einsum("bmi,bmj->bij", A, A)
+    Atb = np.einsum("bmi,bm->bi", A, rhs)
+    return np.einsum("bij,bj->bi", np.linalg.pinv(AtA), Atb)
+
+
+def test_multilateration_kernel_is_the_numpy_expression() -> None:
+    """1 to 39 anchors (fewer than 4: the pseudo-inverse's minimum-norm answer), flat
+    anchor sets, masked and unmeasured anchors."""
+    rng = np.random.default_rng(4)
+    for k in range(200):
+        B, M = int(rng.integers(1, 12)), int(rng.integers(1, 40))
+        anchors = rng.normal(0, 50, (B, M, 3)) * rng.uniform(0.1, 10)
+        if k % 5 == 0:
+            anchors[..., 2] *= 1e-6
+        dists = np.linalg.norm(anchors - rng.normal(0, 50, (B, 1, 3)), axis=2) + rng.normal(0, 0.1, (B, M))
+        dists[rng.random((B, M)) < 0.1] = np.nan
+        mask = (rng.random((B, M)) < 0.8) & ~np.isnan(dists)
+        same(multilateration_reference(anchors, dists, mask), linear_multilateration(anchors, dists, mask))

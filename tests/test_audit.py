@@ -137,6 +137,40 @@ def test_falsified_records_are_refused(lie: str) -> None:
     assert v.audit.refused[-1][1] == reason
 
 
+def test_signatures_checked_at_the_fan_out_are_not_checked_again(monkeypatch) -> None:
+    """A voter that received a step's reports directly (the fan-out) verifies none of them
+    again when the record carries them; without the fan-out it verifies every one."""
+    calls = []
+    verify = Keyring.verify
+    monkeypatch.setattr(Keyring, "verify", lambda self, r: calls.append(r.drone) or verify(self, r))
+    v, chain, _ = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    assert all(v.audit.note_report(r) for r in rec.reports)
+    calls.clear()
+    assert v.audit.check(chain[12], 1)[1] is None
+    assert calls == []
+    fresh, _, _ = voter_through(12)
+    calls.clear()
+    assert fresh.audit.check(chain[12], 1)[1] is None
+    assert sorted(calls) == list(range(N))
+
+
+def test_a_forged_report_is_refused_though_its_genuine_twin_arrived_directly() -> None:
+    """The memo of verified signatures is keyed by a report's bytes: a record carrying an
+    altered report (same drone and step, the genuine signature kept) is refused even though
+    the voter verified the genuine report at the fan-out."""
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    assert all(v.audit.note_report(r) for r in rec.reports)
+    r = rec.reports[4]
+    forged = replace(r, position=r.position + [5.0, 0, 0])
+    reports = {q.drone: q for q in rec.reports} | {4: forged}
+    prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+    lie = replace(compute_record(12, 1, reports, prior, v.config), leader=rec.leader)
+    got, reason = v.audit.check(resealed(lie, keys), 1)
+    assert got is None and reason == "drone 5's report signature"
+
+
 def test_tolerance_is_tight() -> None:
     assert POSITION_TOL_M <= 1e-3  # a record is trusted to a millimetre at the very most
 

@@ -15,13 +15,20 @@ used if its status is better."""
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from pydantic import Field
 
 from swarmraft.estimation.bounds import CHI2_3DOF_999
 from swarmraft.estimation.clique import CliqueParams, clique_detector
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max, status_rank
-from swarmraft.estimation.joint import joint_estimate, residuals, weighted_gauss_newton
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.joint import (
+    joint_estimate,
+    levenberg_marquardt_kernel,
+    residuals,
+    residuals_kernel,
+    weighted_gauss_newton,
+)
+from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whitener
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
@@ -54,40 +61,103 @@ def gnc_estimate(
     answer therefore does not depend on the other trials of its batch: run alone (a leader
     step) or in a sweep chunk of any size, it is the same bit for bit."""
     T, n, _ = reported.shape
-    G_half = np.linalg.cholesky(np.linalg.inv(np.asarray(gnss_cov, float))).T
     meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
-    gnss_w = np.ones((T, n))
-    range_w = meas.astype(float)
     x = weighted_gauss_newton(
-        reported, reported, ranges, gnss_w, range_w, gnss_cov, range_sigma, iters=inner + 2
+        reported,
+        reported,
+        ranges,
+        np.ones((T, n)),
+        meas.astype(float),
+        gnss_cov,
+        range_sigma,
+        iters=inner + 2,
     )
-    rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
-    r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
-    worst_g, worst_r = r2g.max(axis=1) / c_gnss**2, r2r.max(axis=(1, 2)) / c_range**2
-    # np.where(b > a, b, a) and np.where(1 > m, 1, m): Python's max, nan included, per trial
-    mu = np.maximum(2 * np.where(worst_r > worst_g, worst_r, worst_g), 1.0)
-    active = np.arange(T)
-    for _ in range(max_outer):
-        # while every trial is active (always, for a single snapshot), views instead of copies
-        sel = slice(None) if active.size == T else active
-        m = mu[sel]
-        gw = geman_mcclure_weights(r2g[sel], c_gnss**2, m[:, None])
-        rw = np.where(meas[sel], geman_mcclure_weights(r2r[sel], c_range**2, m[:, None, None]), 0.0)
-        rep, rng_ = reported[sel], ranges[sel]
-        xa = weighted_gauss_newton(x[sel], rep, rng_, gw, rw, gnss_cov, range_sigma, iters=inner)
-        rg, rr = residuals(xa, rep, rng_, G_half, range_sigma)
-        x[sel] = xa
-        r2g[sel] = np.einsum("tni,tni->tn", rg, rg)
-        r2r[sel] = np.where(meas[sel], rr**2, 0.0)
-        settled = m <= 1.0
-        m = m / mu_factor
-        mu[sel] = np.where(1.0 > m, 1.0, m)
-        active = active[~settled]
-        if not active.size:
-            break
-    gnss_w = geman_mcclure_weights(r2g, c_gnss**2, 1.0)
-    range_w = np.where(meas, geman_mcclure_weights(r2r, c_range**2, 1.0), 0.0)
+    gnss_w, range_w = np.empty((T, n)), np.empty((T, n, n))
+    _gnc_kernel(
+        x,
+        np.ascontiguousarray(reported, float),
+        np.ascontiguousarray(ranges, float),
+        meas,
+        gnss_whitener(gnss_cov),
+        gnss_information(gnss_cov),
+        float(range_sigma),
+        float(c_gnss) ** 2,
+        float(c_range) ** 2,
+        float(mu_factor),
+        int(max_outer),
+        int(inner),
+        gnss_w,
+        range_w,
+    )
     return x, gnss_w, range_w
+
+
+@njit(cache=True)
+def _square_norms(rg, out):  # pragma: no cover - compiled
+    """|rg_i|^2 (n,) of rows (n, 3), summed as numpy's einsum sums three squares."""
+    for i in range(rg.shape[0]):
+        out[i] = (rg[i, 0] * rg[i, 0] + rg[i, 2] * rg[i, 2]) + rg[i, 1] * rg[i, 1]
+
+
+@njit(cache=True)
+def _largest(a):  # pragma: no cover - compiled
+    """np.max of a (nan if any element is nan)."""
+    best = -np.inf
+    for v in a.ravel():
+        if np.isnan(v):
+            return np.nan
+        best = max(best, v)
+    return best
+
+
+@njit(cache=True)
+def _gnc_kernel(
+    x, reported, ranges, meas, G_half, G, range_sigma, c2g, c2r, mu_factor, max_outer, inner, gnss_w, range_w
+):  # pragma: no cover - compiled
+    """The rounds of `gnc_estimate` from x (T, n, 3), in place, trial by trial (each trial's
+    own mu); then the final weights into gnss_w (T, n) and range_w (T, n, n). The same
+    operations, in the same order, as the numpy loop it replaced (bit for bit)."""
+    T, n, _ = x.shape
+    inv_s2 = 1.0 / range_sigma**2
+    rg = np.empty((1, n, 3))
+    rr = np.empty((1, n, n))
+    r2g = np.empty(n)
+    r2r = np.empty((n, n))
+    gw = np.empty((1, n))
+    rw = np.empty((1, n, n))
+    cost = np.zeros(1)
+    conv = np.zeros(1, dtype=np.bool_)
+    for t in range(T):
+        xt = x[t : t + 1]
+        rep, rng_ = reported[t : t + 1], ranges[t : t + 1]
+        residuals_kernel(xt, rep, rng_, G_half, range_sigma, rg, rr)
+        _square_norms(rg[0], r2g)
+        for i in range(n):
+            for j in range(n):
+                r2r[i, j] = rr[0, i, j] * rr[0, i, j] if meas[t, i, j] else 0.0
+        worst_g, worst_r = _largest(r2g) / c2g, _largest(r2r) / c2r
+        w = worst_r if worst_r > worst_g else worst_g
+        mu = np.nan if np.isnan(2 * w) else max(2 * w, 1.0)  # np.maximum: nan stays nan
+        for _ in range(max_outer):
+            for i in range(n):
+                gw[0, i] = (mu * c2g / (r2g[i] + mu * c2g)) ** 2
+                for j in range(n):
+                    rw[0, i, j] = (mu * c2r / (r2r[i, j] + mu * c2r)) ** 2 if meas[t, i, j] else 0.0
+            levenberg_marquardt_kernel(xt, rep, rng_, gw, rw, G, inv_s2, inner, 1e-7, xt, 0.0, cost, conv)
+            residuals_kernel(xt, rep, rng_, G_half, range_sigma, rg, rr)
+            _square_norms(rg[0], r2g)
+            for i in range(n):
+                for j in range(n):
+                    r2r[i, j] = rr[0, i, j] * rr[0, i, j] if meas[t, i, j] else 0.0
+            settled = mu <= 1.0
+            m = mu / mu_factor
+            mu = 1.0 if 1.0 > m else m
+            if settled:
+                break
+        for i in range(n):
+            gnss_w[t, i] = (1.0 * c2g / (r2g[i] + 1.0 * c2g)) ** 2
+            for j in range(n):
+                range_w[t, i, j] = (1.0 * c2r / (r2r[i, j] + 1.0 * c2r)) ** 2 if meas[t, i, j] else 0.0
 
 
 class JointParams(IntegrityParams):

@@ -279,6 +279,39 @@ def _eigenvalues(C: np.ndarray) -> np.ndarray:
     return out
 
 
+def _unfixed(C: np.ndarray, largest0: np.ndarray, max_condition: float) -> np.ndarray:
+    """Blocks C (..., 3, 3) that do not fix a position (...): largest over smallest
+    eigenvalue above ``max_condition``, or largest eigenvalue above 1e6 times ``largest0``
+    (the all-in-view block's), from `_eigenvalues` (the lower triangle, as LAPACK reads it).
+    Eigenvalues are computed only where a bound cannot decide: a block that is clearly
+    positive definite (leading minors positive by a margin far above rounding) with
+    largest/smallest <= F^3 / det <= max_condition / 2 and largest <= F <= 5e5 largest0
+    (F its Frobenius norm, which bounds every eigenvalue; the smallest is >= det / F^2) is
+    fixed. Most blocks are, and 3x3 eigenvalue problems were most of this test's time."""
+    a, b, c = C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]
+    d, e, f = C[..., 1, 0], C[..., 2, 0], C[..., 2, 1]
+    with np.errstate(all="ignore"):
+        F = np.sqrt(a * a + b * b + c * c + 2 * (d * d + e * e + f * f))
+        minor2 = a * b - d * d
+        det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+        fixed = (
+            np.isfinite(C).all(axis=(-1, -2))  # as `_eigenvalues`: any non-finite entry is unfixed
+            & (a > 0)
+            & (minor2 > 1e-10 * F * F)
+            & (det >= 2 * F**3 / max_condition)
+            & (F <= 5e5 * np.maximum(largest0, 1e-300))
+        )
+    out = np.zeros(fixed.shape, dtype=bool)
+    rest = ~fixed
+    if rest.any():
+        ev = _eigenvalues(C[rest])
+        big0 = np.broadcast_to(largest0, out.shape)[rest]
+        out[rest] = (ev[..., 2] > max_condition * np.maximum(ev[..., 0], 1e-300)) | (
+            ev[..., 2] > 1e6 * np.maximum(big0, 1e-300)
+        )
+    return out
+
+
 @dataclass(frozen=True)
 class Assessment:
     """status (T,), per-drone status (T, n), hpl and vpl (T, n) in m, positions (T, n, 3)
@@ -358,11 +391,9 @@ def assess(
             Cj[a, j] = _blocks(Pa)
             dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
         dj = np.where(np.isfinite(exact[s]), exact[s], dj)  # re-solved where the set is small
-        evj = _eigenvalues(Cj)
         # unfixed without drone j: ill-conditioned, or its variance inflated a millionfold
         # (no other measurement of it at all)
-        ill = evj[..., 2] > p.max_condition * np.maximum(evj[..., 0], 1e-300)
-        ill |= evj[..., 2] > 1e6 * np.maximum(ev[:, None, :, 2], 1e-300)
+        ill = _unfixed(Cj, ev[:, None, :, 2], p.max_condition)
         unverifiable[s] |= (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
         var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
         with np.errstate(invalid="ignore"):  # inf - inf (a drone unfixed either way): nan, never separated

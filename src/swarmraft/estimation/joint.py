@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 from scipy.special import chdtri
 
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.noise import NoiseModel, gnss_information
 from swarmraft.estimation.trust_region import linear_multilateration
 
 
@@ -28,11 +28,56 @@ def _geometry(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def residuals(
     x: np.ndarray, reported: np.ndarray, ranges: np.ndarray, G_half: np.ndarray, range_sigma: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened GNSS residuals (T, n, 3) and range residuals (T, n, n) at positions x."""
-    rg = np.einsum("ij,tnj->tni", G_half, x - reported)
-    dist, _ = _geometry(x)
-    rr = np.where(np.isnan(ranges), 0.0, (dist - np.nan_to_num(ranges)) / range_sigma)
+    """Whitened GNSS residuals (T, n, 3) and range residuals (T, n, n) at positions x (0 where
+    a range is nan). One compiled kernel: it is called a dozen times per leader step, where
+    numpy's per-call overhead on these small arrays was most of its time."""
+    T, n, _ = x.shape
+    rg = np.empty((T, n, 3))
+    rr = np.empty((T, n, n))
+    residuals_kernel(
+        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(reported, float),
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(G_half, float),
+        float(range_sigma),
+        rg,
+        rr,
+    )
     return rg, rr
+
+
+@njit(cache=True)
+def residuals_kernel(x, reported, ranges, G_half, range_sigma, rg, rr):  # pragma: no cover
+    """`residuals` in place on rg, rr, in numpy's order of operations (bit for bit the
+    einsum and nan_to_num expression it replaced: an infinite range counts as +-DBL_MAX)."""
+    T, n, _ = x.shape
+    big = np.finfo(np.float64).max
+    for t in range(T):
+        for i in range(n):
+            e0 = x[t, i, 0] - reported[t, i, 0]
+            e1 = x[t, i, 1] - reported[t, i, 1]
+            e2 = x[t, i, 2] - reported[t, i, 2]
+            for a in range(3):
+                rg[t, i, a] = G_half[a, 0] * e0 + G_half[a, 1] * e1 + G_half[a, 2] * e2
+            for j in range(n):
+                d = ranges[t, i, j]
+                if np.isnan(d):
+                    rr[t, i, j] = 0.0
+                    continue
+                if np.isinf(d):
+                    d = big if d > 0 else -big
+                rr[t, i, j] = (pair_distance(x[t], i, j) - d) / range_sigma
+
+
+@njit(cache=True)
+def pair_distance(xt, i, j):  # pragma: no cover - compiled
+    """|x_i - x_j| (compiled) summed as numpy's einsum sums three squares, (d0^2 + d2^2) + d1^2
+    (its two-lane loop), so a kernel gives the bits of ``np.sqrt(np.einsum("tijk,tijk->tij",
+    diff, diff))``, the expression the kernels replaced."""
+    d0 = xt[i, 0] - xt[j, 0]
+    d1 = xt[i, 1] - xt[j, 1]
+    d2 = xt[i, 2] - xt[j, 2]
+    return np.sqrt((d0 * d0 + d2 * d2) + d1 * d1)
 
 
 @njit(cache=True)
@@ -114,7 +159,7 @@ def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # p
 
 
 @njit(cache=True)
-def _levenberg_marquardt_kernel(
+def levenberg_marquardt_kernel(
     x, reported, ranges, gnss_w, range_w, G, inv_s2, iters, tol, prior, prior_w, cost_out, conv_out
 ):  # pragma: no cover - compiled
     """Problem by problem, in place on x (T, n, 3): Levenberg-Marquardt with step acceptance.
@@ -180,6 +225,14 @@ def _levenberg_marquardt_kernel(
         conv_out[t] = conv
 
 
+def _dense(w: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Weights ``w`` as a C-contiguous float array of ``shape`` (broadcast only if needed)."""
+    w = np.asarray(w)
+    if w.shape != shape:
+        w = np.broadcast_to(w, shape)
+    return np.ascontiguousarray(w, float)
+
+
 def weighted_gauss_newton(
     x0: np.ndarray,
     reported: np.ndarray,
@@ -203,17 +256,18 @@ def weighted_gauss_newton(
     cost (T,) and whether each problem converged (T,)."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
-    G = np.linalg.inv(np.asarray(gnss_cov, float))
+    G = gnss_information(gnss_cov)
     has_prior = prior is not None and prior_sigma is not None and prior_sigma > 0
-    prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.full((T, n, 3), np.nan)
+    # without a prior the kernel never reads it (its weight is 0)
+    prior_arr = np.ascontiguousarray(prior, float) if has_prior else np.empty((T, n, 3))
     cost = np.zeros(T)
     conv = np.zeros(T, dtype=np.bool_)
-    _levenberg_marquardt_kernel(
+    levenberg_marquardt_kernel(
         x,
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
-        np.ascontiguousarray(np.broadcast_to(gnss_w, (T, n)), float),
-        np.ascontiguousarray(np.broadcast_to(range_w, (T, n, n)), float),
+        _dense(gnss_w, (T, n)),
+        _dense(range_w, (T, n, n)),
         G,
         1.0 / range_sigma**2,
         int(iters),

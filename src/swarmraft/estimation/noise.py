@@ -29,6 +29,36 @@ class NoiseParams(LinkParams):
     )
 
 
+_MEMO: dict[tuple[str, bytes], np.ndarray] = {}
+
+
+def _memo(kind: str, gnss_cov: np.ndarray, make) -> np.ndarray:  # noqa: ANN001
+    key = (kind, np.asarray(gnss_cov, float).tobytes())
+    out = _MEMO.get(key)
+    if out is None:
+        if len(_MEMO) >= 64:
+            _MEMO.clear()
+        out = _MEMO[key] = make(np.asarray(gnss_cov, float))
+        out.flags.writeable = False  # shared by every caller
+    return out
+
+
+def gnss_information(gnss_cov: np.ndarray) -> np.ndarray:
+    """gnss_cov^-1 (3, 3), memoised by the covariance's bytes (a detector has one or two;
+    the solvers asked for it a dozen times per leader step). Read only."""
+    return _memo("information", gnss_cov, np.linalg.inv)
+
+
+def gnss_whitener(gnss_cov: np.ndarray) -> np.ndarray:
+    """W (3, 3, C-contiguous) with W^T W = gnss_cov^-1: W e is a whitened GNSS error
+    (memoised as `gnss_information`). Read only."""
+    return _memo("whitener", gnss_cov, _cholesky_whitener)
+
+
+def _cholesky_whitener(gnss_cov: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.linalg.cholesky(gnss_information(gnss_cov)).T)
+
+
 @dataclass(frozen=True)
 class NoiseModel:
     gnss_cov: np.ndarray  # (3, 3), each drone's own GNSS error
@@ -52,8 +82,8 @@ class NoiseModel:
 
     @cached_property
     def whitener(self) -> np.ndarray:
-        """W with W^T W = gnss_cov^-1: W e is a whitened GNSS error (computed once per model)."""
-        return np.linalg.cholesky(np.linalg.inv(self.gnss_cov)).T
+        """W with W^T W = gnss_cov^-1: W e is a whitened GNSS error (`gnss_whitener`)."""
+        return gnss_whitener(self.gnss_cov)
 
     def los_variance(self, u: np.ndarray) -> np.ndarray:
         """GNSS variance along unit vectors u (..., 3)."""

@@ -12,8 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from swarmraft.estimation.joint import initial_positions, weighted_gauss_newton
+from swarmraft.estimation.joint import initial_positions, pair_distance, weighted_gauss_newton
 from swarmraft.estimation.noise import NoiseModel
 
 
@@ -223,14 +224,51 @@ def _own_cost(
 ) -> np.ndarray:
     """Per untrusted drone j (T, n; 0 for trusted ones): the chi-square of the ranges trusted
     drones measured to it, and of its prior: the part of the joint cost only x_j changes."""
-    diff = x[:, :, None, :] - x[:, None, :, :]
-    dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
-    meas = ~np.isnan(ranges) & trusted[:, :, None]
-    r2 = np.where(meas, (dist - np.nan_to_num(ranges)) ** 2, 0.0).sum(axis=1) / range_sigma**2
-    if prior is not None and prior_sigma:
-        has = np.isfinite(prior).all(axis=2)
-        r2 = r2 + np.where(has, np.sum((x - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0)
-    return np.where(trusted, 0.0, r2)
+    T, n, _ = x.shape
+    has_prior = prior is not None and bool(prior_sigma)
+    out = np.empty((T, n))
+    _own_cost_kernel(
+        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(trusted, np.bool_),
+        float(range_sigma) ** 2,
+        np.ascontiguousarray(prior, float) if has_prior else x,
+        float(prior_sigma) ** 2 if has_prior else 0.0,
+        has_prior,
+        out,
+    )
+    return out
+
+
+@njit(cache=True)
+def _own_cost_kernel(x, ranges, trusted, s2, prior, p2, has_prior, out):  # pragma: no cover
+    """`_own_cost` in place on out (T, n), in the order of operations of the numpy expression
+    it replaced (a sum over the measuring drones i in order; an infinite range as +-DBL_MAX,
+    as nan_to_num made it), so bit for bit the same; ``prior`` is read only with ``has_prior``."""
+    T, n, _ = x.shape
+    big = np.finfo(np.float64).max
+    col = np.empty(n)
+    for t in range(T):
+        for j in range(n):
+            col[j] = 0.0
+        for i in range(n):
+            for j in range(n):
+                d = ranges[t, i, j]
+                v = 0.0
+                if trusted[t, i] and not np.isnan(d):
+                    if np.isinf(d):
+                        d = big if d > 0 else -big
+                    r = pair_distance(x[t], i, j) - d
+                    v = r * r
+                col[j] = v if i == 0 else col[j] + v
+        for j in range(n):
+            r2 = col[j] / s2
+            if has_prior and np.isfinite(prior[t, j]).all():
+                e0 = x[t, j, 0] - prior[t, j, 0]
+                e1 = x[t, j, 1] - prior[t, j, 1]
+                e2 = x[t, j, 2] - prior[t, j, 2]
+                r2 = r2 + ((e0 * e0 + e1 * e1) + e2 * e2) / p2
+            out[t, j] = 0.0 if trusted[t, j] else r2
 
 
 def anchor_planes(
@@ -238,15 +276,50 @@ def anchor_planes(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For every drone i, its anchors (T, i, k): trusted drones k that measured a range to
     it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
-    ascending order of spread (column 0: the normal of their best-fit plane)."""
-    n = x.shape[1]
+    ascending order of spread (column 0: the normal of their best-fit plane). One compiled
+    kernel (numpy's per-call overhead on 17-drone arrays was most of its time)."""
+    T, n, _ = x.shape
     anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
-    w = anchors.astype(float)
-    cnt = w.sum(axis=2)
-    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
-    dev = x[:, None, :, :] - mean[:, :, None, :]  # (T, i, k, 3)
-    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    cnt, mean, vec = np.empty((T, n)), np.empty((T, n, 3)), np.empty((T, n, 3, 3))
+    _anchor_planes_kernel(np.ascontiguousarray(x, float), np.ascontiguousarray(anchors), cnt, mean, vec)
     return anchors, cnt, mean, vec
+
+
+@njit(cache=True)
+def _anchor_planes_kernel(x, anchors, cnt, mean, vec):  # pragma: no cover - compiled
+    """`anchor_planes`' count, centroid and axes, in the order of operations of the numpy
+    expressions it replaced (einsum's sums over the anchors in order, then
+    np.linalg.eigh, the same LAPACK routine), so bit for bit the same."""
+    T, n, _ = x.shape
+    S = np.empty((3, 3))
+    for t in range(T):
+        for i in range(n):
+            c = 0.0
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for k in range(n):
+                w = 1.0 if anchors[t, i, k] else 0.0
+                c += w
+                m0 += w * x[t, k, 0]
+                m1 += w * x[t, k, 1]
+                m2 += w * x[t, k, 2]
+            cnt[t, i] = c
+            div = max(c, 1.0)
+            mean[t, i, 0] = m0 / div
+            mean[t, i, 1] = m1 / div
+            mean[t, i, 2] = m2 / div
+            for a in range(3):
+                for b in range(3):
+                    S[a, b] = 0.0
+            for k in range(n):
+                w = 1.0 if anchors[t, i, k] else 0.0
+                for a in range(3):
+                    da = x[t, k, a] - mean[t, i, a]
+                    for b in range(3):
+                        S[a, b] += w * da * (x[t, k, b] - mean[t, i, b])
+            _, v = np.linalg.eigh(S)
+            vec[t, i] = v
 
 
 def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:

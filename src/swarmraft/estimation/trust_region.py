@@ -364,16 +364,91 @@ def linear_multilateration(anchors: np.ndarray, dists: np.ndarray, mask: np.ndar
 
     Subtracting the anchor mean from ``||x||^2 - 2 a_j.x + ||a_j||^2 = d_j^2`` gives a linear
     system in x; it is solved in the least-squares sense (minimum norm where it is singular,
-    e.g. with 3 anchors, whose mirror ambiguity it cannot resolve).
+    e.g. with 3 anchors, whose mirror ambiguity it cannot resolve). One compiled kernel
+    (`_multilateration_kernel`).
     """
-    w = mask.astype(float)
-    cnt = np.maximum(w.sum(axis=1), 1.0)
-    d2 = np.where(mask, dists, 0.0) ** 2
-    a2 = np.einsum("bmk,bmk->bm", anchors, anchors)
-    a_bar = np.einsum("bm,bmk->bk", w, anchors) / cnt[:, None]
-    rhs = (d2 - a2) - (np.einsum("bm,bm->b", w, d2 - a2) / cnt)[:, None]
-    A = -2 * (anchors - a_bar[:, None, :]) * w[..., None]
-    rhs = rhs * w
-    AtA = np.einsum("bmi,bmj->bij", A, A)
-    Atb = np.einsum("bmi,bm->bi", A, rhs)
-    return np.einsum("bij,bj->bi", np.linalg.pinv(AtA), Atb)
+    anchors = np.ascontiguousarray(anchors, float)
+    out = np.empty((anchors.shape[0], 3))
+    _multilateration_kernel(
+        anchors, np.ascontiguousarray(dists, float), np.ascontiguousarray(mask, np.bool_), out
+    )
+    return out
+
+
+@njit(cache=True)
+def _contiguous_dot(a, b):  # pragma: no cover - compiled
+    """sum_m a_m b_m summed as numpy's einsum sums a contiguous axis here (two lanes, blocks
+    of eight taken last element first, then pairs, then lane 0 + lane 1)."""
+    acc0 = 0.0
+    acc1 = 0.0
+    m = a.shape[0]
+    i = 0
+    while m - i >= 8:
+        acc0 = a[i] * b[i] + (a[i + 2] * b[i + 2] + (a[i + 4] * b[i + 4] + (a[i + 6] * b[i + 6] + acc0)))
+        acc1 = a[i + 1] * b[i + 1] + (
+            a[i + 3] * b[i + 3] + (a[i + 5] * b[i + 5] + (a[i + 7] * b[i + 7] + acc1))
+        )
+        i += 8
+    while i < m:
+        acc0 = a[i] * b[i] + acc0
+        if i + 1 < m:
+            acc1 = a[i + 1] * b[i + 1] + acc1
+        i += 2
+    return acc0 + acc1
+
+
+@njit(cache=True)
+def _multilateration_kernel(anchors, dists, mask, out):  # pragma: no cover - compiled
+    """`linear_multilateration` problem by problem into out (B, 3), in the order of operations
+    of the numpy expression it replaced (its einsum sums, np.linalg.pinv's SVD, cutoff and
+    product), so bit for bit the same: numpy's per-call overhead on these few 3-vectors was
+    most of its time."""
+    B, M, _ = anchors.shape
+    w = np.empty(M)
+    t = np.empty(M)
+    rhs = np.empty(M)
+    A = np.empty((M, 3))
+    AtA = np.empty((3, 3))
+    Atb = np.empty(3)
+    R = np.empty((3, 3))
+    a_bar = np.empty(3)
+    for b in range(B):
+        cnt = 0.0
+        for m in range(M):
+            w[m] = 1.0 if mask[b, m] else 0.0
+            cnt += w[m]
+        cnt = max(cnt, 1.0)
+        for m in range(M):
+            d = dists[b, m] if mask[b, m] else 0.0
+            a0, a1, a2 = anchors[b, m, 0], anchors[b, m, 1], anchors[b, m, 2]
+            t[m] = d * d - ((a0 * a0 + a2 * a2) + a1 * a1)
+        for k in range(3):
+            acc = 0.0
+            for m in range(M):
+                acc += w[m] * anchors[b, m, k]
+            a_bar[k] = acc / cnt
+        mean_t = _contiguous_dot(w, t) / cnt
+        for m in range(M):
+            rhs[m] = (t[m] - mean_t) * w[m]
+            for k in range(3):
+                A[m, k] = (-2 * (anchors[b, m, k] - a_bar[k])) * w[m]
+        for i in range(3):
+            acc = 0.0
+            for m in range(M):
+                acc += A[m, i] * rhs[m]
+            Atb[i] = acc
+            for j in range(3):
+                acc = 0.0
+                for m in range(M):
+                    acc += A[m, i] * A[m, j]
+                AtA[i, j] = acc
+        # np.linalg.pinv: SVD, singular values below 1e-15 of the largest dropped
+        u, s, vt = np.linalg.svd(AtA, full_matrices=False)
+        cutoff = 1e-15 * s.max()
+        for i in range(3):
+            inv = 1.0 / s[i] if s[i] > cutoff else 0.0
+            for j in range(3):
+                R[i, j] = inv * u[j, i]
+        P = np.ascontiguousarray(vt.T) @ R
+        for i in range(3):
+            out[b, i] = (P[i, 0] * Atb[0] + P[i, 2] * Atb[2]) + P[i, 1] * Atb[1]

@@ -1,0 +1,243 @@
+"""The compiled kernels that replaced numpy expressions in the estimators compute what those
+expressions computed: each is compared with the expression it replaced (kept here as the
+reference) on random batches with unmeasured (nan) and infinite ranges, untrusted drones and
+partial priors. Summation order may differ between machines (numpy's einsum vectorises), so
+values are compared to 1e-13 relative; nan and inf patterns exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swarmraft.estimation.gnc import geman_mcclure_weights, gnc_estimate
+from swarmraft.estimation.integrity import _eigenvalues, _unfixed
+from swarmraft.estimation.joint import residuals, weighted_gauss_newton
+from swarmraft.estimation.robust import _own_cost, anchor_planes
+from swarmraft.estimation.trust_region import linear_multilateration
+
+
+def _distances(x: np.ndarray) -> np.ndarray:
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    return np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+
+
+def residuals_reference(x, reported, ranges, G_half, range_sigma):
+    rg = np.einsum("ij,tnj->tni", G_half, x - reported)
+    rr = np.where(np.isnan(ranges), 0.0, (_distances(x) - np.nan_to_num(ranges)) / range_sigma)
+    return rg, rr
+
+
+def own_cost_reference(x, ranges, trusted, range_sigma, prior, prior_sigma):
+    meas = ~np.isnan(ranges) & trusted[:, :, None]
+    r2 = np.where(meas, (_distances(x) - np.nan_to_num(ranges)) ** 2, 0.0).sum(axis=1) / range_sigma**2
+    if prior is not None and prior_sigma:
+        has = np.isfinite(prior).all(axis=2)
+        r2 = r2 + np.where(has, np.sum((x - np.nan_to_num(prior)) ** 2, axis=2) / prior_sigma**2, 0.0)
+    return np.where(trusted, 0.0, r2)
+
+
+def gnc_reference(reported, ranges, gnss_cov, range_sigma, c_gnss, c_range, mu_factor, max_outer, inner):
+    """`gnc.gnc_estimate`'s rounds as the numpy loop they were, over the batch's active trials."""
+    T, n, _ = reported.shape
+    G_half = np.linalg.cholesky(np.linalg.inv(gnss_cov)).T
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    x = weighted_gauss_newton(
+        reported, reported, ranges, np.ones((T, n)), meas.astype(float), gnss_cov, range_sigma, inner + 2
+    )
+    rg, rr = residuals(x, reported, ranges, G_half, range_sigma)
+    r2g, r2r = np.einsum("tni,tni->tn", rg, rg), np.where(meas, rr**2, 0.0)
+    worst_g, worst_r = r2g.max(axis=1) / c_gnss**2, r2r.max(axis=(1, 2)) / c_range**2
+    mu = np.maximum(2 * np.where(worst_r > worst_g, worst_r, worst_g), 1.0)
+    active = np.arange(T)
+    for _ in range(max_outer):
+        sel = slice(None) if active.size == T else active
+        m = mu[sel]
+        gw = geman_mcclure_weights(r2g[sel], c_gnss**2, m[:, None])
+        rw = np.where(meas[sel], geman_mcclure_weights(r2r[sel], c_range**2, m[:, None, None]), 0.0)
+        rep, rng_ = reported[sel], ranges[sel]
+        xa = weighted_gauss_newton(x[sel], rep, rng_, gw, rw, gnss_cov, range_sigma, iters=inner)
+        rg, rr = residuals(xa, rep, rng_, G_half, range_sigma)
+        x[sel] = xa
+        r2g[sel] = np.einsum("tni,tni->tn", rg, rg)
+        r2r[sel] = np.where(meas[sel], rr**2, 0.0)
+        settled = m <= 1.0
+        m = m / mu_factor
+        mu[sel] = np.where(1.0 > m, 1.0, m)
+        active = active[~settled]
+        if not active.size:
+            break
+    gnss_w = geman_mcclure_weights(r2g, c_gnss**2, 1.0)
+    return x, gnss_w, np.where(meas, geman_mcclure_weights(r2r, c_range**2, 1.0), 0.0)
+
+
+def batches(seed: int, count: int = 60):
+    """Random problems: positions at several scales, ranges with noise, nan (unmeasured) and
+    (every fourth batch) inf entries, a trusted set, priors with nan rows (or none)."""
+    rng = np.random.default_rng(seed)
+    for k in range(count):
+        T, n = int(rng.integers(1, 5)), int(rng.integers(2, 19))
+        x = rng.normal(0, 50, (T, n, 3)) * rng.uniform(0.01, 100)
+        d = np.linalg.norm(x[:, :, None] - x[:, None], axis=3) + rng.normal(0, 0.1, (T, n, n))
+        d[rng.random((T, n, n)) < 0.2] = np.nan
+        if k % 4 == 0:
+            d[rng.random((T, n, n)) < 0.05] = np.inf
+        prior = None if k % 3 == 0 else x + rng.normal(0, 2, x.shape)
+        if prior is not None:
+            prior[rng.random((T, n)) < 0.4] = np.nan
+        yield {
+            "x": x,
+            "reported": x + rng.normal(0, 3, x.shape),
+            "ranges": d,
+            "trusted": rng.random((T, n)) < 0.7,
+            "prior": prior,
+            "prior_sigma": None if k % 7 == 0 else float(rng.uniform(0.5, 5)),
+            "range_sigma": float(rng.uniform(0.01, 1)),
+        }
+
+
+def same(a: np.ndarray, b: np.ndarray) -> None:
+    assert a.shape == b.shape
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
+    np.testing.assert_array_equal(a[np.isinf(a)], b[np.isinf(b)])
+    finite = np.isfinite(a)
+    np.testing.assert_allclose(a[finite], b[finite], rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_residuals_kernel_is_the_numpy_expression(seed: int) -> None:
+    G_half = np.linalg.cholesky(np.linalg.inv(np.diag([2.25, 2.25, 9.0]))).T
+    for b in batches(seed):
+        with np.errstate(all="ignore"):
+            want = residuals_reference(b["x"], b["reported"], b["ranges"], G_half, b["range_sigma"])
+        got = residuals(b["x"], b["reported"], b["ranges"], G_half, b["range_sigma"])
+        for w, g in zip(want, got, strict=True):
+            same(w, g)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_own_cost_kernel_is_the_numpy_expression(seed: int) -> None:
+    for b in batches(seed):
+        args = (b["x"], b["ranges"], b["trusted"], b["range_sigma"], b["prior"], b["prior_sigma"])
+        with np.errstate(all="ignore"):
+            want = own_cost_reference(*args)
+        same(want, _own_cost(*args))
+
+
+def test_gnc_kernel_is_the_numpy_loop() -> None:
+    """Swarms with up to half their reports spoofed by up to 60 m, random GNC settings."""
+    rng = np.random.default_rng(5)
+    cov = np.diag([2.25, 2.25, 9.0])
+    for _ in range(40):
+        T, n = int(rng.integers(1, 5)), int(rng.integers(4, 18))
+        x = rng.uniform(0, 100, (T, n, 3))
+        d = np.linalg.norm(x[:, :, None] - x[:, None], axis=3) + rng.normal(0, 0.1, (T, n, n))
+        d[rng.random((T, n, n)) < 0.15] = np.nan
+        rep = x + rng.normal(0, 2, x.shape)
+        f = int(rng.integers(0, n // 2 + 1))
+        rep[:, :f] += rng.uniform(-60, 60, (T, f, 3))
+        kw = {
+            "c_gnss": float(rng.uniform(2, 5)),
+            "c_range": float(rng.uniform(2, 5)),
+            "mu_factor": float(rng.uniform(1.3, 3)),
+            "max_outer": int(rng.integers(3, 60)),
+            "inner": int(rng.integers(1, 3)),
+        }
+        want = gnc_reference(rep, d, cov, 0.1, **kw)
+        got = gnc_estimate(rep, d, cov, 0.1, **kw)
+        for w, g in zip(want, got, strict=True):
+            same(w, g)
+
+
+def unfixed_reference(C, largest0, max_condition):
+    """`integrity.assess`'s test before `_unfixed`: eigenvalues of every block."""
+    ev = _eigenvalues(C)
+    big0 = np.broadcast_to(largest0, ev.shape[:-1])
+    return (ev[..., 2] > max_condition * np.maximum(ev[..., 0], 1e-300)) | (
+        ev[..., 2] > 1e6 * np.maximum(big0, 1e-300)
+    )
+
+
+def test_unfixed_decides_as_the_eigenvalues_do() -> None:
+    """Blocks with eigenvalues from e^-20 to e^20, some negative or zero (indefinite,
+    singular), not exactly symmetric, some with inf or nan entries (upper triangle too),
+    against several max_condition: the bound skips most eigenvalue problems and decides
+    every block as they do."""
+    rng = np.random.default_rng(0)
+    skipped = total = 0
+    for k in range(600):
+        m = int(rng.integers(1, 50))
+        Q = np.linalg.qr(rng.normal(size=(m, 3, 3)))[0]
+        lam = np.exp(rng.uniform(-20, 20, (m, 1, 3)))
+        lam *= rng.choice([1, 1, 1, -1], (m, 1, 3)) * rng.choice([1, 0], (m, 1, 3), p=[0.95, 0.05])
+        if k % 2:
+            lam = np.exp(rng.uniform(0, 4, (m, 1, 3)))  # well conditioned: the common case
+        C = (Q * lam) @ np.swapaxes(Q, 1, 2)
+        C += rng.normal(0, 1e-14, C.shape) * np.abs(C).max()
+        if k % 10 == 0:
+            C[rng.integers(m)] = np.inf
+        if k % 13 == 0:
+            C[rng.integers(m), 0, 1] = np.nan
+        l0 = np.exp(rng.uniform(-25, 25, m)) if k % 3 else np.full(m, 1e3)
+        mc = float(rng.choice([1e6, 1e3, 10.0, 1e9]))
+        with np.errstate(all="ignore"):
+            want, got = unfixed_reference(C, l0, mc), _unfixed(C, l0, mc)
+        np.testing.assert_array_equal(want, got)
+        total += m
+        skipped += int((~want).sum())
+    assert skipped > total // 3  # the test saw many fixed blocks, not only unfixed ones
+
+
+def anchor_planes_reference(x, ranges, trusted):
+    n = x.shape[1]
+    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+    w = anchors.astype(float)
+    cnt = w.sum(axis=2)
+    mean = np.einsum("tik,tkc->tic", w, x) / np.maximum(cnt, 1)[..., None]
+    dev = x[:, None, :, :] - mean[:, :, None, :]
+    _, vec = np.linalg.eigh(np.einsum("tik,tika,tikb->tiab", w, dev, dev))
+    return anchors, cnt, mean, vec
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_anchor_planes_kernel_is_the_numpy_expression(seed: int) -> None:
+    for k, b in enumerate(batches(seed)):
+        x = b["x"].copy()
+        if k % 4 == 0:
+            x[..., 2] *= 1e-3  # a flat layer: the plane's normal is well defined
+        want = anchor_planes_reference(x, b["ranges"], b["trusted"])
+        got = anchor_planes(x, b["ranges"], b["trusted"])
+        np.testing.assert_array_equal(want[0], got[0])
+        same(want[1], got[1])
+        same(want[2], got[2])
+        # principal axes: the same LAPACK routine on the same matrix (up to sign elsewhere)
+        np.testing.assert_allclose(np.abs(want[3]), np.abs(got[3]), rtol=0, atol=1e-9)
+
+
+def multilateration_reference(anchors, dists, mask):
+    w = mask.astype(float)
+    cnt = np.maximum(w.sum(axis=1), 1.0)
+    d2 = np.where(mask, dists, 0.0) ** 2
+    a2 = np.einsum("bmk,bmk->bm", anchors, anchors)
+    a_bar = np.einsum("bm,bmk->bk", w, anchors) / cnt[:, None]
+    rhs = (d2 - a2) - (np.einsum("bm,bm->b", w, d2 - a2) / cnt)[:, None]
+    A = -2 * (anchors - a_bar[:, None, :]) * w[..., None]
+    rhs = rhs * w
+    AtA = np.einsum("bmi,bmj->bij", A, A)
+    Atb = np.einsum("bmi,bm->bi", A, rhs)
+    return np.einsum("bij,bj->bi", np.linalg.pinv(AtA), Atb)
+
+
+def test_multilateration_kernel_is_the_numpy_expression() -> None:
+    """1 to 39 anchors (fewer than 4: the pseudo-inverse's minimum-norm answer), flat
+    anchor sets, masked and unmeasured anchors."""
+    rng = np.random.default_rng(4)
+    for k in range(200):
+        B, M = int(rng.integers(1, 12)), int(rng.integers(1, 40))
+        anchors = rng.normal(0, 50, (B, M, 3)) * rng.uniform(0.1, 10)
+        if k % 5 == 0:
+            anchors[..., 2] *= 1e-6
+        dists = np.linalg.norm(anchors - rng.normal(0, 50, (B, 1, 3)), axis=2) + rng.normal(0, 0.1, (B, M))
+        dists[rng.random((B, M)) < 0.1] = np.nan
+        mask = (rng.random((B, M)) < 0.8) & ~np.isnan(dists)
+        same(multilateration_reference(anchors, dists, mask), linear_multilateration(anchors, dists, mask))

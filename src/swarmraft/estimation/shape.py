@@ -10,9 +10,10 @@ registration of the same shape, through the pivots. So the candidates for the ho
 the inlier sets of the rigid registrations of the shape to the reports:
 
 1. Hypotheses: every triple of placed drones (at most ``max_triples``, a fixed quasi-random
-   choice beyond), each with both handednesses (the shape from ranges is known up to a
-   reflection, and three points cannot tell one from the other), registered by orthogonal
-   Procrustes (Kabsch, with the determinant fixed to +1 or -1).
+   choice beyond) whose three pairs are consistent (`clique.consistency_graph` at ``k``
+   sigma) and that no set found so far holds, each with both handednesses (the shape from
+   ranges is known up to a reflection, and three points cannot tell one from the other),
+   registered by orthogonal Procrustes (Kabsch, with the determinant fixed to +1 or -1).
 2. Inliers: the drones whose report lies within the chi-square 3-dof ``1 - p_fa / n``
    quantile of the registered shape (whitened by the GNSS covariance plus the shape's own
    error), refitted on its inliers ``refits`` times, keeping the handedness.
@@ -179,8 +180,11 @@ def _registration_kernel(
 ):  # pragma: no cover - compiled
     """Per trial, the distinct inlier sets of at least ``min_size`` drones of the rigid
     registrations grown from the triples ``tri`` that are triangles of the consistency graph
-    ``adj`` and not already inside a set found with the same handedness; at most
-    sets.shape[1] of them (count[t] one more than that when the cap cut the search short)."""
+    ``adj`` and not already inside a set found, each with both handednesses; at most
+    sets.shape[1] of them (count[t] one more than that when the cap cut the search short).
+    A triangle inside a registration found would seed, with the other handedness, only that
+    registration's mirror image across its own plane: colluders reflected about three pivots
+    are also seeded by their own triangles, which the honest registration does not hold."""
     T, n, _ = shape.shape
     M = sets.shape[1]
     w = np.zeros(n)
@@ -189,21 +193,21 @@ def _registration_kernel(
     tr = np.zeros(3)
     for t in range(T):
         c = 0
-        for hi in range(2):
-            hand = 1.0 - 2.0 * hi
-            for m in range(tri.shape[0]):
-                i, j, k = tri[m, 0], tri[m, 1], tri[m, 2]
-                if not (placed[t, i] and placed[t, j] and placed[t, k]):
-                    continue
-                if not (adj[t, i, j] and adj[t, i, k] and adj[t, j, k]):
-                    continue
+        for m in range(tri.shape[0]):
+            i, j, k = tri[m, 0], tri[m, 1], tri[m, 2]
+            if not (placed[t, i] and placed[t, j] and placed[t, k]):
+                continue
+            if not (adj[t, i, j] and adj[t, i, k] and adj[t, j, k]):
+                continue
+            for hi in range(2):
+                hand = 1.0 - 2.0 * hi
                 covered = False
                 for s in range(min(c, M)):
-                    if hands[t, s] == hand and sets[t, s, i] and sets[t, s, j] and sets[t, s, k]:
+                    if sets[t, s, i] and sets[t, s, j] and sets[t, s, k]:
                         covered = True
                         break
                 if covered:
-                    continue
+                    break
                 w[:] = 0.0
                 w[i] = w[j] = w[k] = 1.0
                 ok = False
@@ -244,6 +248,51 @@ def _registration_kernel(
         count[t] = c
 
 
+@njit(cache=True)
+def _registered_kernel(shape, reported, masks, hands, placed, out):  # pragma: no cover - compiled
+    """For each candidate b: the shape registered (`_procrustes`) to the reports of its placed
+    members with its handedness, every placed drone at its registered position and the others
+    at their reports, into out[b] (n, 3); the reports where fewer than 3 members are placed."""
+    B, n, _ = shape.shape
+    R = np.zeros((3, 3))
+    tr = np.zeros(3)
+    w = np.zeros(n)
+    for b in range(B):
+        cnt = 0
+        for i in range(n):
+            w[i] = 1.0 if masks[b, i] and placed[b, i] else 0.0
+            cnt += masks[b, i] and placed[b, i]
+        out[b] = reported[b]
+        if cnt < 3:
+            continue
+        _procrustes(shape[b], reported[b], w, hands[b], R, tr)
+        for i in range(n):
+            if placed[b, i]:
+                for a in range(3):
+                    out[b, i, a] = (
+                        tr[a] + R[a, 0] * shape[b, i, 0] + R[a, 1] * shape[b, i, 1] + R[a, 2] * shape[b, i, 2]
+                    )
+
+
+def registered(
+    shape: np.ndarray, reported: np.ndarray, masks: np.ndarray, hands: np.ndarray, placed: np.ndarray
+) -> np.ndarray:
+    """Positions (B, n, 3): each candidate's registration of the shape (B, n, 3) to the
+    reports of its members ``masks`` (B, n) with handedness ``hands`` (B,) (unplaced drones
+    at their reports): the start of its joint estimate, every drone already where the
+    ranges put it relative to the trusted ones."""
+    out = np.empty_like(np.asarray(reported, float))
+    _registered_kernel(
+        np.ascontiguousarray(shape, float),
+        np.ascontiguousarray(reported, float),
+        np.ascontiguousarray(masks, np.bool_),
+        np.ascontiguousarray(hands, float),
+        np.ascontiguousarray(placed, np.bool_),
+        out,
+    )
+    return out
+
+
 def registration_sets(
     shape: np.ndarray,
     reported: np.ndarray,
@@ -255,13 +304,13 @@ def registration_sets(
     refits: int,
     max_sets: int,
     min_size: int,
-) -> tuple[list[np.ndarray], np.ndarray]:
-    """Per trial, the distinct inlier sets (m, n) of the rigid registrations of the shape
-    (T, n, 3) to the reports (module docstring), grown from triangles of the consistency
-    graph ``adj`` (T, n, n) of ``placed`` drones; inliers: whitened squared residual
-    (covariance ``cov``) <= ``threshold``; only sets of ``min_size`` drones or more (a
-    candidate for the honest set leaves at most f_max out). Also whether each trial's search stopped at
-    ``max_sets`` sets (T,)."""
+) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Per trial, the distinct inlier sets (m, n) and their handednesses (m,) of the rigid
+    registrations of the shape (T, n, 3) to the reports (module docstring), grown from
+    triangles of the consistency graph ``adj`` (T, n, n) of ``placed`` drones; inliers:
+    whitened squared residual (covariance ``cov``) <= ``threshold``; only sets of
+    ``min_size`` drones or more (a candidate for the honest set leaves at most f_max out).
+    Also whether each trial's search stopped at ``max_sets`` sets (T,)."""
     T, n, _ = shape.shape
     sets = np.zeros((T, max_sets, n), dtype=np.bool_)
     hands = np.zeros((T, max_sets))
@@ -280,7 +329,8 @@ def registration_sets(
         hands,
         count,
     )
-    return [sets[t, : min(count[t], max_sets)] for t in range(T)], count > max_sets
+    kept = np.minimum(count, max_sets)
+    return [sets[t, : kept[t]] for t in range(T)], [hands[t, : kept[t]] for t in range(T)], count > max_sets
 
 
 def _maximal(masks: np.ndarray) -> np.ndarray:
@@ -306,25 +356,32 @@ def shape_detector(batch: SnapshotBatch, p: ShapeParams) -> VerdictBatch:
     threshold = float(chi2_quantile(1 - p.p_fa / n, 3))
     adj = consistency_graph(reported, ranges, noise, p.k)
     adj[:, np.arange(n), np.arange(n)] = True
-    found, capped = registration_sets(
+    found, handed, capped = registration_sets(
         shape, reported, placed, adj, cov, threshold, p.max_triples, p.refits, p.max_sets, n - f_max
     )
-    cands = []
-    for t, sets in enumerate(found):
+    cands, hands = [], []
+    for t, (sets, hs) in enumerate(zip(found, handed, strict=True)):
         if not len(sets):  # no registration: the drones the shape does not place, if any
-            sets = np.zeros((1, n), dtype=bool)
+            sets, hs = np.zeros((1, n), dtype=bool), np.ones(1)
         # a drone the shape does not place joins a set if its report agrees pairwise with
         # every member's report it has a range to (the residual tests then judge it)
         loose = ~placed[t][None, :] & (adj[t][None, :, :] | ~sets[:, None, :]).all(axis=2)
         sets = sets | loose
-        sets = sets[(n - sets.sum(axis=1)) <= f_max]
-        cands.append(sets[np.argsort(-sets.sum(axis=1), kind="stable")])
+        keep = (n - sets.sum(axis=1)) <= f_max
+        order = np.argsort(-sets[keep].sum(axis=1), kind="stable")
+        cands.append(sets[keep][order])
+        hands.append(hs[keep][order])
     owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
     masks = np.concatenate(cands) if owner.size else np.zeros((0, n), dtype=bool)
     passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
     x = np.zeros((owner.size, n, 3))
     if owner.size:
-        x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
+        # each candidate's joint estimate starts from its registration: with few trusted
+        # drones (n near 2f+1) closed-form multilateration from them can start in a mirror
+        x0 = registered(shape[owner], reported[owner], masks, np.concatenate(hands), placed[owner])
+        x = joint_estimate(
+            reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma, iters=20, x0=x0
+        )
         _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
         passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
     trusted = np.ones((T, n), dtype=bool)

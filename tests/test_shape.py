@@ -157,3 +157,16 @@ def test_no_ranges_is_not_ok():
     rep = np.random.default_rng(1).uniform(0, 100, (9, 3))
     b = SnapshotBatch(rep[None], np.full((1, 9, 9), np.nan), (1.5, 3.0), 0.1)
     assert verify_batch(b, "shape").status[0] in ("alarm", "degenerate")
+
+
+def test_the_documented_collusion_config_reads_into_a_sweep():
+    from pathlib import Path
+
+    from swarmraft.cli.options import sweep_config
+
+    path = Path(__file__).parents[1] / "docs/examples/collusion-30m.toml"
+    cfg = sweep_config("realistic", path, "12", "4", False, 10, None, {})
+    cfg = cfg.model_copy(update={"attack": cfg.attack.model_copy(update={"name": "collusion-2"})})
+    assert cfg.attack.min_move == 30.0 and cfg.detector_params == {"f_max": 4}
+    d = draw(cfg, np.random.default_rng(0), 10, 12, 4)
+    assert (np.linalg.norm(d.reported - d.truth, axis=2)[d.attackers] >= 30.0).all()

@@ -112,6 +112,7 @@ def main() -> None:
     ap.add_argument("--min-move", type=float, default=30.0, help="every attacker moved at least, m")
     ap.add_argument("--chunk", type=int, default=1000, help="trials per batch (sweeps: chunk_size)")
     ap.add_argument("--only", default="", help="comma-separated attack names to keep (e.g. collusion-3)")
+    ap.add_argument("--f", default="", help="comma-separated attacker counts to keep (of 3, 4, 5)")
     ap.add_argument("--step", default="", help="N,F: time single-snapshot steps at this cell instead")
     ap.add_argument("--repeat", type=int, default=200, help="--step: snapshots timed")
     a = ap.parse_args()
@@ -123,7 +124,7 @@ def main() -> None:
     keep = set(a.only.split(",")) if a.only else None
     print("attack       n  f  f_max    detector exact  wrong  fp     unid   unid|exact  ms/trial")
     for attack, n, f, rule in cells():
-        if keep and attack not in keep:
+        if (keep and attack not in keep) or (a.f and str(f) not in a.f.split(",")):
             continue
         for row in run_cell(attack, n, f, rule, dets, a.trials, a.seed, a.min_move, a.chunk):
             at, n_, f_, r, det, ex, wr, fp, un, ue, ms = row

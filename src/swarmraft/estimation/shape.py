@@ -11,17 +11,19 @@ the inlier sets of the rigid registrations of the shape to the reports:
 
 1. Hypotheses: every triple of placed drones (at most ``max_triples``, a fixed quasi-random
    choice beyond) whose three pairs are consistent (`clique.consistency_graph` at ``k``
-   sigma) and that no set found so far holds, each with both handednesses (the shape from
-   ranges is known up to a reflection, and three points cannot tell one from the other),
-   registered by orthogonal Procrustes (Kabsch, with the determinant fixed to +1 or -1).
+   sigma), each with both handednesses (the shape from ranges is known up to a reflection,
+   and three points cannot tell one from the other) unless a set found so far with that
+   handedness holds it, registered by orthogonal Procrustes (Kabsch, with the determinant
+   fixed to +1 or -1).
 2. Inliers: the drones whose report lies within the chi-square 3-dof ``1 - p_fa / n``
    quantile of the registered shape (whitened by the GNSS covariance plus the shape's own
    error), refitted on its inliers ``refits`` times, keeping the handedness.
 3. Candidates: the distinct inlier sets that leave at most ``f_max`` drones out (by default
    an honest majority, (n - 1) // 2). Each is tested like `clique`'s candidates: a joint
    estimate trusting it (`joint.joint_estimate`) and the residual tests at ``p_fa``
-   (`joint.tests_pass`). A passing set contained in another passing set explains less of the
-   data and is dropped.
+   (`joint.tests_pass`). A passing set inside another passing set whose estimate places
+   every drone where it does (within the inlier quantile) is the same explanation with
+   drones left out, and is dropped; one that places some drone elsewhere is another.
 4. One set left: it is trusted. Two or more: two trusted sets with at most ``f_max``
    attackers each explain the data, and the status is ``unidentifiable``; only the drones
    outside every such set are flagged, and the positions come from the drones inside all of
@@ -180,11 +182,11 @@ def _registration_kernel(
 ):  # pragma: no cover - compiled
     """Per trial, the distinct inlier sets of at least ``min_size`` drones of the rigid
     registrations grown from the triples ``tri`` that are triangles of the consistency graph
-    ``adj`` and not already inside a set found, each with both handednesses; at most
-    sets.shape[1] of them (count[t] one more than that when the cap cut the search short).
-    A triangle inside a registration found would seed, with the other handedness, only that
-    registration's mirror image across its own plane: colluders reflected about three pivots
-    are also seeded by their own triangles, which the honest registration does not hold."""
+    ``adj``, each with both handednesses unless a set found with that handedness holds it;
+    at most sets.shape[1] of them (count[t] one more than that when the cap cut the search
+    short). A triangle inside a registration of the other handedness is tried: colluders
+    reflected about three pivots with every honest drone near the pivots' plane make one
+    registration of all the drones, and the honest drones' own one lies inside it."""
     T, n, _ = shape.shape
     M = sets.shape[1]
     w = np.zeros(n)
@@ -203,11 +205,11 @@ def _registration_kernel(
                 hand = 1.0 - 2.0 * hi
                 covered = False
                 for s in range(min(c, M)):
-                    if sets[t, s, i] and sets[t, s, j] and sets[t, s, k]:
+                    if hands[t, s] == hand and sets[t, s, i] and sets[t, s, j] and sets[t, s, k]:
                         covered = True
                         break
                 if covered:
-                    break
+                    continue
                 w[:] = 0.0
                 w[i] = w[j] = w[k] = 1.0
                 ok = False
@@ -333,11 +335,18 @@ def registration_sets(
     return [sets[t, : kept[t]] for t in range(T)], [hands[t, : kept[t]] for t in range(T)], count > max_sets
 
 
-def _maximal(masks: np.ndarray) -> np.ndarray:
-    """Which of the sets (m, n) are not strictly contained in another one of them (m,)."""
+def distinct_explanations(masks: np.ndarray, x: np.ndarray, Winv: np.ndarray, threshold: float) -> np.ndarray:
+    """Which of the passing sets (m, n), with their joint estimates x (m, n, 3), are explanations
+    of their own (m,): a set inside a larger one whose estimate places every drone within
+    ``threshold`` (whitened by Winv) of it is the same explanation with drones left out; a
+    set inside a larger one that places some drone further away is another (e.g. colluders
+    reflected about three pivots with every honest drone near the pivots' plane: all the
+    drones fit the reflection, and the honest ones the truth)."""
     inside = (masks[:, None, :] <= masks[None, :, :]).all(axis=2)  # a within b
     strict = inside & ~inside.T
-    return ~strict.any(axis=1)
+    d = x[:, None] - x[None, :]
+    apart = (np.einsum("abni,ij,abnj->abn", d, Winv, d) > threshold).any(axis=2)
+    return ~(strict & ~apart).any(axis=1)
 
 
 @register("shape", ShapeParams, "rigid registrations of the range-fixed shape to the reports")
@@ -354,6 +363,7 @@ def shape_detector(batch: SnapshotBatch, p: ShapeParams) -> VerdictBatch:
     # the shape's own error (a few range sigmas per axis) beside each drone's GNSS error
     cov = noise.gnss_cov + (2 * noise.range_sigma) ** 2 * np.eye(3)
     threshold = float(chi2_quantile(1 - p.p_fa / n, 3))
+    Winv = np.linalg.inv(cov)
     adj = consistency_graph(reported, ranges, noise, p.k)
     adj[:, np.arange(n), np.arange(n)] = True
     found, handed, capped = registration_sets(
@@ -397,7 +407,8 @@ def shape_detector(batch: SnapshotBatch, p: ShapeParams) -> VerdictBatch:
             status[t] = "alarm"
             continue
         plausible = ks[passed[ks]]
-        plausible = plausible[_maximal(masks[plausible])] if plausible.size else plausible
+        if plausible.size:
+            plausible = plausible[distinct_explanations(masks[plausible], x[plausible], Winv, threshold)]
         support[t] = masks[plausible].sum(axis=0)
         if capped[t]:  # the search stopped before it saw every registration
             status[t] = "unidentifiable"

@@ -21,7 +21,7 @@ from swarmraft.world.geometry import true_distances
 sys.path.insert(0, str(Path(__file__).parent))
 from test_paper_detector import reference_algorithm  # noqa: E402
 
-NEW = ("clique", "fde", "joint")
+NEW = ("clique", "fde", "joint", "shape")
 GEOMETRIES = {"cube": uniform_cube, "flat": flat_layer, "line": near_line}
 
 

@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from swarmraft.experiments import build_config
+from swarmraft.experiments.trials import draw
 from swarmraft.world import (
     AreaSpoof,
     Attack,
@@ -161,6 +163,34 @@ def test_rigid_collusion_keeps_ranges_to_pivots_and_among_attackers(rng, k):
     pivots = (~att) & consistent.all(axis=1)
     assert (pivots.sum(axis=1) >= k).all()
     assert np.mean(pivots.sum(axis=1) == k) > 0.95
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_rigid_collusion_min_move_moves_every_attacker_that_far(k):
+    T, n, f = 300, 12, 4
+    rng = np.random.default_rng(k)
+    truth = uniform_cube(rng, T, n)
+    att = choose_attackers(rng, T, n, f)
+    plain = RigidCollusion(pivots=k).reports(np.random.default_rng(9), truth, truth.copy(), att)
+    assert (np.linalg.norm(plain - truth, axis=2)[att] < 30).any(axis=0).any()  # without: some do not
+    same = RigidCollusion(pivots=k, min_move=0.0).reports(np.random.default_rng(9), truth, truth.copy(), att)
+    np.testing.assert_array_equal(same, plain)  # 0: the draws of before, bit for bit
+    attack = {"name": f"collusion-{k}", "min_move": 30.0}
+    cfg = build_config("realistic", n=(n,), f=(f,), trials=T, attack=attack)
+    d = draw(cfg, np.random.default_rng(k), T, n, f)
+    moved = np.linalg.norm(d.reported - d.truth, axis=2)
+    assert (moved[d.attackers] >= 30.0).all()
+    # still a rigid motion about k honest pivots: distances among attackers kept
+    pair = d.attackers[:, :, None] & d.attackers[:, None, :]
+    np.testing.assert_allclose(true_distances(d.reported)[pair], true_distances(d.truth)[pair], atol=1e-9)
+
+
+def test_rigid_collusion_min_move_out_of_reach_is_one_line_naming_it():
+    attack = {"name": "collusion-3", "min_move": 500.0}
+    cfg = build_config("realistic", n=(7,), f=(3,), trials=5, attack=attack)
+    with pytest.raises(ValueError, match=r"^attack\.min_move: ") as exc:
+        draw(cfg, np.random.default_rng(0), 5, 7, 3)
+    assert "\n" not in str(exc.value)
 
 
 def test_area_spoof_all_victims_report_one_point(rng):

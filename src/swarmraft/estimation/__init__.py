@@ -5,6 +5,7 @@ from swarmraft.estimation import clique as _clique  # noqa: F401  (registers "cl
 from swarmraft.estimation import fde as _fde  # noqa: F401  (registers "fde")
 from swarmraft.estimation import gnc as _gnc  # noqa: F401  (registers "joint")
 from swarmraft.estimation import paper as _paper  # noqa: F401  (registers "paper")
+from swarmraft.estimation import shape as _shape  # noqa: F401  (registers "shape")
 from swarmraft.estimation.paper import PaperParams
 from swarmraft.estimation.registry import (
     detector_names,

@@ -338,3 +338,12 @@ def run_screened(run, batch: SnapshotBatch, p: BaseModel, sigma_floor: float = 1
     v = run(replace(batch, ranges=s.ranges), p)
     diag = {**v.diagnostics, "range_dropped": s.dropped.sum(axis=2), "enlargement": s.delta}
     return replace(v, faulty=v.faulty | s.enlarged, diagnostics=diag)
+
+
+def range_shape(ranges: np.ndarray, use: np.ndarray, sigma: float) -> np.ndarray:
+    """The swarm's shape (T, n, 3) from its ranges alone, up to a rigid motion and a
+    reflection: classical MDS of the largest fully measured set, the others by closed-form
+    multilateration, then Levenberg-Marquardt on the ranges ``use`` (T, n, n) marks, each
+    with noise ``sigma`` (m) (the fit `screen` makes). A drone with fewer than 4 placed
+    drones to range with stays at the origin."""
+    return _fit(_mds(np.where(use, ranges, np.nan)), ranges, use.astype(float), sigma)

@@ -92,7 +92,8 @@ class AttackConfig(_Strict):
     """Which attack and its parameters. ``jump``: independent jumps (``box`` half width or
     ``shell`` low-high magnitude); ``range-tamper``: jumps plus ranges consistent with the
     fake reports; ``range-bias``: jumps plus a bias on the attackers' ranges;
-    ``collusion-k``: rigid motion about k honest pivots; ``area``: all report one point;
+    ``collusion-k``: rigid motion about k honest pivots (every attacker moved at least
+    ``min_move`` m); ``area``: all report one point;
     ``enlarge``: distance enlargement of ``enlarge_low``-``enlarge_high`` m per attacker (every
     range it takes part in reads long), its GNSS honest; ``enlarge-jump``: the same plus jumps."""
 
@@ -103,6 +104,7 @@ class AttackConfig(_Strict):
     high: float = Field(100.0, ge=0)
     bias: float = 5.0
     angle_deg: tuple[float, float] = (20.0, 90.0)
+    min_move: float = Field(0.0, ge=0, description="collusion-k: every attacker moved at least this far, m")
     enlarge_low: float = Field(2.0, ge=0, description="distance enlargement per attacker, low end, m")
     enlarge_high: float = Field(10.0, ge=0, description="distance enlargement per attacker, high end, m")
 
@@ -127,7 +129,7 @@ class AttackConfig(_Strict):
         if self.name.startswith("enlarge"):
             delay = DistanceEnlargement(self.enlarge_low, self.enlarge_high)
             return Attack(jump if self.name == "enlarge-jump" else None, enlargement=delay)
-        return Attack(RigidCollusion(int(self.name[-1]), self.angle_deg))  # type: ignore[arg-type]
+        return Attack(RigidCollusion(int(self.name[-1]), self.angle_deg, self.min_move))  # type: ignore[arg-type]
 
     @property
     def min_honest(self) -> int:

@@ -40,8 +40,34 @@ def chunk_seed(seed: int, n: int, f: int, chunk: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(entropy=seed, spawn_key=(n, f, chunk))
 
 
+REDRAWS = 50  # whole-trial redraws for the attack's min_move at most
+
+
 def draw(config: SweepConfig, rng: np.random.Generator, trials: int, n: int, f: int) -> Draw:
-    """Sample the world for T trials: truth, honest reports, ranges, then the attack."""
+    """Sample the world for T trials: truth, honest reports, ranges, then the attack. With
+    the attack's ``min_move``, a trial in which some attacker's report lies closer than that
+    to its truth is drawn again, whole, up to ``REDRAWS`` times (a one-line ValueError naming
+    the field beyond)."""
+    d = _draw_once(config, rng, trials, n, f)
+    need = config.attack.min_move
+    if need <= 0:
+        return d
+    for _ in range(REDRAWS):
+        moved = np.linalg.norm(d.reported - d.truth, axis=2)
+        short = np.flatnonzero((d.attackers & (moved < need)).any(axis=1))
+        if not short.size:
+            return d
+        again = _draw_once(config, rng, short.size, n, f)
+        for name in ("truth", "reported", "ranges", "attackers"):
+            getattr(d, name)[short] = getattr(again, name)
+    raise ValueError(
+        f"attack.min_move: {REDRAWS} draws of a trial at n = {n}, f = {f} never moved every attacker "
+        f"{need:g} m or more; lower it"
+    )
+
+
+def _draw_once(config: SweepConfig, rng: np.random.Generator, trials: int, n: int, f: int) -> Draw:
+    """One draw of T trials (`draw`)."""
     if config.geometry == "cube":
         truth = uniform_cube(rng, trials, n, config.area_size)
     elif config.geometry == "flat":

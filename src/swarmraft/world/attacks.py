@@ -100,10 +100,19 @@ def rigid_motions(
 class RigidCollusion:
     """The attackers report a rigid motion of their true positions that keeps k honest pivot
     drones fixed (k = 1, 2, 3), so every range among attackers and to the pivots stays
-    consistent. Rotation angle uniform in ``angle_deg`` with a random sign."""
+    consistent. Rotation angle uniform in ``angle_deg`` with a random sign.
+
+    ``min_move`` (m): a trial whose motion moves some attacker less than this is drawn again
+    (pivots, axis, angle and sign), up to ``MOVE_DRAWS`` times; a trial no draw satisfies (its
+    attackers all near every pivot axis or plane) keeps its last draw, for the caller to
+    redraw the whole trial (`experiments.trials.draw` does). 0 (the default) draws once.
+    """
 
     pivots: Literal[1, 2, 3] = 1
     angle_deg: tuple[float, float] = (20.0, 90.0)
+    min_move: float = 0.0
+
+    MOVE_DRAWS = 50
 
     def __post_init__(self) -> None:
         if self.pivots not in (1, 2, 3):
@@ -111,17 +120,30 @@ class RigidCollusion:
         lo, hi = self.angle_deg
         if not 0 <= lo <= hi <= 180:
             raise ValueError("RigidCollusion: angle_deg must satisfy 0 <= low <= high <= 180")
+        if not self.min_move >= 0:
+            raise ValueError("RigidCollusion: min_move must be >= 0 m")
 
-    def reports(self, rng, truth, reported, attackers):
+    def _moved(self, rng, truth, honest):
+        """One draw of pivots and motion per trial: the moved positions (T, n, 3)."""
         T, n, _ = truth.shape
-        honest = ~attackers
-        if (honest.sum(axis=1) < self.pivots).any():
-            raise ValueError(f"RigidCollusion: needs at least {self.pivots} honest drones")
         keys = np.where(honest, rng.random((T, n)), np.inf)
         pivot_idx = np.argsort(keys, axis=1)[:, : self.pivots]
         pivots = np.take_along_axis(truth, pivot_idx[..., None], axis=1)
         R, shift = rigid_motions(rng, pivots, self.angle_deg)
-        moved = np.einsum("tij,tnj->tni", R, truth) + shift[:, None, :]
+        return np.einsum("tij,tnj->tni", R, truth) + shift[:, None, :]
+
+    def reports(self, rng, truth, reported, attackers):
+        honest = ~attackers
+        if (honest.sum(axis=1) < self.pivots).any():
+            raise ValueError(f"RigidCollusion: needs at least {self.pivots} honest drones")
+        moved = self._moved(rng, truth, honest)
+        if self.min_move > 0:
+            for _ in range(self.MOVE_DRAWS):
+                dist = np.linalg.norm(moved - truth, axis=2)
+                short = np.flatnonzero((attackers & (dist < self.min_move)).any(axis=1))
+                if not short.size:
+                    break
+                moved[short] = self._moved(rng, truth[short], honest[short])
         return np.where(attackers[..., None], moved, reported)
 
 

@@ -1,0 +1,198 @@
+"""The `shape` detector: rigid registrations of the range-fixed shape to the reports, and
+rigid collusion under realistic noise."""
+
+import numpy as np
+import pytest
+
+from swarmraft.estimation import Snapshot, SnapshotBatch, verify, verify_batch
+from swarmraft.estimation.shape import procrustes_fit, shape_ranges, triples
+from swarmraft.experiments import build_config
+from swarmraft.experiments.trials import draw, snapshot_batch
+from swarmraft.world.geometry import true_distances
+
+
+def collusion(n, f, k, trials, seed=1, min_move=30.0):
+    """Realistic noise (GNSS 1.5/3 m, UWB 0.10 m), attackers moved rigidly about k pivots,
+    every one at least ``min_move`` m."""
+    cfg = build_config(
+        "realistic", n=(n,), f=(f,), trials=trials, attack={"name": f"collusion-{k}", "min_move": min_move}
+    )
+    d = draw(cfg, np.random.default_rng(seed), trials, n, f)
+    return d, snapshot_batch(cfg, d)
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_rigid_collusion_at_2f_plus_4_is_identified_exactly(k):
+    d, b = collusion(12, 4, k, 60, seed=k)
+    v = verify_batch(b, "shape", f_max=4)
+    exact = (v.faulty == d.attackers).all(axis=1)
+    assert exact.mean() >= 0.9, exact.mean()
+    assert not (v.faulty & ~d.attackers).any()  # no honest drone accused
+    err = np.linalg.norm(v.positions - d.truth, axis=2)
+    ok = v.status == "ok"
+    assert ok.mean() >= 0.9
+    assert err[ok].max() < 20.0  # the colluders are put back where they are, not where they say
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_at_2f_plus_1_two_registrations_are_unidentifiable(k):
+    """At n = 2f+1 the colluders and their pivots (f + k drones) leave at most f drones out:
+    a second explanation within f_max. The answer is unidentifiable, never the wrong set."""
+    d, b = collusion(9, 4, k, 40, seed=10 + k)
+    v = verify_batch(b, "shape")
+    unid = v.status == "unidentifiable"
+    exact = (v.faulty == d.attackers).all(axis=1)
+    assert (unid | exact).mean() >= 0.95
+    assert unid.mean() >= 0.9  # the test is not passed by exact answers alone
+    assert (v.faulty & ~d.attackers).any(axis=1).mean() <= 0.025  # at most 1 of 40
+    # what every explanation trusts (the pivots, honest drones near the axis, or nothing
+    # where three explanations share no drone): never a colluder
+    trusted = v.diagnostics["trusted"]
+    assert not (trusted[unid] & d.attackers[unid]).any()
+
+
+def test_reflection_about_three_pivots_identified_with_f_max_f():
+    d, b = collusion(14, 5, 3, 40, seed=5)
+    v = verify_batch(b, "shape", f_max=5)
+    exact = (v.faulty == d.attackers).all(axis=1)
+    unid = v.status == "unidentifiable"
+    assert exact.mean() >= 0.5
+    assert (exact | unid).mean() >= 0.95
+    # at most 1 of 40: the honest set may fail its own chi-square test by chance (p_fa), and
+    # then the colluders' set is the only explanation left (an alarm here)
+    assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1
+
+
+def test_default_f_max_counts_an_honest_drone_near_the_axis_as_a_second_explanation():
+    """n = 2f + 4 with f_max = f + 1 (the default): the colluders, their 2 pivots and one
+    honest drone that the rotation barely moves leave f + 1 drones out: a second trusted set
+    within f_max. Where that happens the answer is unidentifiable, and no honest drone is
+    flagged; with f_max = f the same trials are identified."""
+    d, b = collusion(12, 4, 2, 60, seed=3)
+    v = verify_batch(b, "shape")
+    unid = v.status == "unidentifiable"
+    assert unid.any()
+    support = v.diagnostics["explanations"]
+    # in those trials some honest drone is trusted by both explanations beside the pivots
+    assert ((support[unid] == 2) & ~d.attackers[unid]).sum(axis=1).min() >= 3
+    assert not (v.faulty & ~d.attackers).any()
+    w = verify_batch(b.subset(unid), "shape", f_max=4)
+    assert (w.faulty == d.attackers[unid]).all(axis=1).mean() >= 0.6
+
+
+def test_plain_jumps_realistic_flags_attackers_not_honest():
+    cfg = build_config("realistic", n=(13,), f=(4,), trials=60)
+    d = draw(cfg, np.random.default_rng(4), 60, 13, 4)
+    v = verify_batch(snapshot_batch(cfg, d), "shape")
+    assert v.faulty[d.attackers].mean() > 0.85
+    assert v.faulty[~d.attackers].mean() < 0.02
+    err = np.linalg.norm(v.positions - d.truth, axis=2)
+    raw = np.linalg.norm(d.reported - d.truth, axis=2)
+    assert np.nanmean(err[~d.attackers]) < raw[~d.attackers].mean()
+
+
+def test_same_input_same_verdict_alone_or_in_a_batch():
+    d, b = collusion(10, 3, 1, 12, seed=8)
+    whole = verify_batch(b, "shape")
+    again = verify_batch(b, "shape")
+    for name in ("positions", "hpl", "vpl"):
+        assert np.array_equal(getattr(whole, name), getattr(again, name), equal_nan=True)
+    for name in ("faulty", "status", "drone_status"):
+        assert np.array_equal(getattr(whole, name), getattr(again, name))
+    for t in (0, 5, 11):
+        one = verify_batch(b.subset(np.array([t])), "shape")
+        assert np.array_equal(one.positions[0], whole.positions[t], equal_nan=True)
+        assert np.array_equal(one.faulty[0], whole.faulty[t])
+        assert one.status[0] == whole.status[t]
+
+
+def test_procrustes_recovers_a_rigid_motion_and_its_handedness():
+    rng = np.random.default_rng(2)
+    y = rng.uniform(0, 100, (8, 3))
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    for R in (q * np.sign(np.linalg.det(q)), -q * np.sign(np.linalg.det(q))):  # proper, improper
+        z = y @ R.T + [5.0, -3.0, 40.0]
+        hand = float(np.sign(np.linalg.det(R)))
+        R_hat, t_hat = procrustes_fit(y, z, np.ones(8), hand)
+        assert np.allclose(R_hat, R, atol=1e-9) and np.allclose(t_hat, [5.0, -3.0, 40.0], atol=1e-7)
+        R_bad, t_bad = procrustes_fit(y, z, np.ones(8), -hand)  # the other handedness cannot fit
+        assert np.abs(y @ R_bad.T + t_bad - z).max() > 1.0
+
+
+def test_triples_all_when_few_else_a_fixed_distinct_choice():
+    assert len(triples(6, 100)) == 20
+    many = triples(40, 500)
+    assert many.shape == (500, 3) and len(np.unique(many, axis=0)) == 500
+    assert (many[:, 0] < many[:, 1]).all() and (many[:, 1] < many[:, 2]).all()
+    assert np.array_equal(many, triples(40, 500))
+    assert set(np.unique(many)) == set(range(40))  # every drone seeds some registration
+
+
+def test_a_drone_tampering_with_its_ranges_is_placed_by_the_others():
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 100, (1, 9, 3))
+    ranges = true_distances(truth) + rng.normal(0, 0.1, (1, 9, 9))
+    ranges[0, 4, :] += 20.0  # drone 4's own ranges, all 20 m long
+    ranges[0, 4, 4] = 0.0
+    use = shape_ranges(ranges, 0.1, 5.0)
+    assert not use[0, 4].any()  # its own ranges dropped
+    assert use[0, :, 4].sum() == 8  # the others' ranges to it kept
+    ranges[0, 2, 7] += 3.0  # one direction of one link disagrees: that link is dropped both ways
+    use = shape_ranges(ranges, 0.1, 5.0)
+    assert not use[0, 2, 7] and not use[0, 7, 2] and use[0, 2, 6]
+
+
+def test_bad_parameter_is_one_line_naming_it():
+    snap = Snapshot(
+        reported=np.zeros((5, 3)), ranges=np.zeros((5, 5)), gnss_sigma=(1.5, 3.0), range_sigma=0.1
+    )
+    with pytest.raises(ValueError, match=r"^shape\.max_triples: ") as exc:
+        verify(snap, "shape", max_triples=0)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ValueError, match=r"^shape\.f_max: "):
+        verify(snap, "shape", f_max=9)
+
+
+def test_no_ranges_is_not_ok():
+    rep = np.random.default_rng(1).uniform(0, 100, (9, 3))
+    b = SnapshotBatch(rep[None], np.full((1, 9, 9), np.nan), (1.5, 3.0), 0.1)
+    assert verify_batch(b, "shape").status[0] in ("alarm", "degenerate")
+
+
+def test_the_documented_collusion_config_reads_into_a_sweep():
+    from pathlib import Path
+
+    from swarmraft.cli.options import sweep_config
+
+    path = Path(__file__).parents[1] / "docs/examples/collusion-30m.toml"
+    cfg = sweep_config("realistic", path, "12", "4", False, 10, None, {})
+    cfg = cfg.model_copy(update={"attack": cfg.attack.model_copy(update={"name": "collusion-2"})})
+    assert cfg.attack.min_move == 30.0 and cfg.detector_params == {"f_max": 4}
+    d = draw(cfg, np.random.default_rng(0), 10, 12, 4)
+    assert (np.linalg.norm(d.reported - d.truth, axis=2)[d.attackers] >= 30.0).all()
+
+
+def test_a_reflection_that_every_drone_fits_is_not_ok():
+    """Colluders reflected in the plane of 3 pivots while the only other honest drone lies in
+    that plane: every report fits the reflected shape (no attacker at all), and the 4 honest
+    ones fit the truth (3 attackers). Two explanations that place the colluders 30+ m
+    apart: unidentifiable, never ok with the reflection."""
+    rng = np.random.default_rng(6)
+    hits = 0
+    for _ in range(10):
+        p = rng.uniform(0, 100, (3, 3))
+        nrm = np.cross(p[1] - p[0], p[2] - p[0])
+        nrm /= np.linalg.norm(nrm)
+        inplane = p.mean(axis=0) + 0.6 * (p[1] - p[0]) - 0.3 * (p[2] - p[0])
+        sides = rng.uniform(0, 100, (3, 3))
+        sides += (20.0 + np.abs((sides - p[0]) @ nrm))[:, None] * nrm * np.sign((sides - p[0]) @ nrm)[:, None]
+        truth = np.vstack([p, inplane, sides])[None]  # drones 4-6 at least 20 m off the plane
+        rep = truth + rng.standard_normal((1, 7, 3)) * [1.5, 1.5, 3.0]
+        reflected = truth[0, 4:] - 2 * ((truth[0, 4:] - p[0]) @ nrm)[:, None] * nrm
+        rep[0, 4:] = reflected
+        ranges = true_distances(truth) + rng.normal(0, 0.1, (1, 7, 7))
+        v = verify_batch(SnapshotBatch(rep, ranges, (1.5, 3.0), 0.1), "shape")
+        assert v.status[0] != "ok", v.faulty[0]
+        assert not v.faulty[0, :4].any()
+        hits += v.status[0] == "unidentifiable"
+    assert hits >= 9

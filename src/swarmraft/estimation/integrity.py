@@ -159,12 +159,17 @@ def _hypothesis_information(
     noise: NoiseModel,
     keep: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, Terms]:
-    """Per drone j (as one fault hypothesis): the Fisher information A (T, n, 3n, 3n) of its
-    GNSS report (if trusted) and the ranges it measured (if trusted) to drones in ``keep``
-    (T, n), and their gradient b (T, n, 3n) at x. The trusted set's information is the sum
-    over j. Drones outside ``keep`` (undetermined) take no part: an estimate that is still
-    crawling along a direction the geometry does not fix would spoil the others'. The third
-    result holds the same information as measurement terms (`Terms`)."""
+    """Per drone j (as one fault hypothesis), the information of its GNSS report (if
+    trusted) and of the ranges it measured (if trusted) to drones in ``keep`` (T, n), as
+    measurement terms (`Terms`), and their gradient b (T, n, 3n) at x; also the trusted
+    set's information J (T, 3n, 3n), the sum over j of each hypothesis' information A_j.
+    Drones outside ``keep`` (undetermined) take no part: an estimate that is still crawling
+    along a direction the geometry does not fix would spoil the others'.
+
+    J is built from the terms, not from the A_j (n matrices of 3n x 3n: 1.2 GB at n = 256);
+    `_hypothesis_matrix` builds one A_j where it is needed. J equals summing the A_j over j
+    in order bit for bit: an off-diagonal block gets two terms, a diagonal one is summed in
+    the same order of j."""
     T, n, _ = x.shape
     G = np.linalg.inv(noise.gnss_cov)
     w_r = 1.0 / noise.range_sigma**2
@@ -175,21 +180,33 @@ def _hypothesis_information(
     meas &= keep[:, :, None] & keep[:, None, :]
     r = np.where(meas, dist - np.nan_to_num(ranges), 0.0)
     uu = np.einsum("tjk,tjka,tjkb->tjkab", meas * w_r, u, u)  # (T, j, k, 3, 3)
-    A = np.zeros((T, n, n, 3, n, 3))
     idx = np.arange(n)
-    # block (j, j): GNSS + sum_k w u u^T; blocks (k, k): w u u^T; (j, k), (k, j): -w u u^T
-    A[:, idx, idx, :, idx, :] = (np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)).transpose(
-        1, 0, 2, 3
-    )
-    A[:, idx[:, None], idx[None, :], :, idx[None, :], :] += uu.transpose(1, 2, 0, 3, 4)
-    A[:, idx[:, None], idx[:, None], :, idx[None, :], :] -= uu.transpose(1, 2, 0, 3, 4)
-    A[:, idx[:, None], idx[None, :], :, idx[:, None], :] -= uu.transpose(1, 2, 0, 3, 4)
+    # A_j: block (j, j) GNSS + sum_k w u u^T; blocks (k, k) w u u^T; (j, k), (k, j) -w u u^T.
+    # In J, block (p, q) (p != q) is -uu[p, q] - uu[q, p]; block (p, p) sums over j the
+    # own block (j = p) and uu[j, p] (j != p)
+    J = -(uu + np.swapaxes(uu, 1, 2)).transpose(0, 1, 3, 2, 4)  # (T, p, 3, q, 3)
+    diag = uu.copy()
+    diag[:, idx, idx] = np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)
+    J[:, idx, :, idx, :] = diag.sum(axis=1).transpose(1, 0, 2, 3)  # in order of j
     b = np.zeros((T, n, n, 3))
     e = np.where(trusted[..., None], np.einsum("ab,tjb->tja", G, x - reported), 0.0)
     b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
     b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
     terms = Terms(np.where(trusted, 1.0, 0.0), G, u, meas * w_r)
-    return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n), terms
+    return J.reshape(T, 3 * n, 3 * n), b.reshape(T, n, 3 * n), terms
+
+
+def _hypothesis_matrix(t: Terms, a: int, j: int) -> np.ndarray:
+    """Hypothesis j's information A_j (3n, 3n) in trial a, from its terms (see `Terms`)."""
+    n = t.w.shape[1]
+    uu = np.einsum("k,ka,kb->kab", t.w[a, j], t.u[a, j], t.u[a, j])  # (k, 3, 3)
+    A = np.zeros((n, 3, n, 3))
+    idx = np.arange(n)
+    A[idx, :, idx, :] = uu
+    A[j, :, j, :] = t.gnss[a, j] * t.G + uu.sum(axis=0)
+    A[j, :, :, :] -= uu.transpose(1, 0, 2)
+    A[:, :, j, :] -= uu
+    return A.reshape(3 * n, 3 * n)
 
 
 def too_few_without_one(
@@ -331,11 +348,10 @@ def assess(
     step = max(1, _MEMORY_FLOATS // (n * (3 * n) ** 2))
     for lo in range(0, T, step):
         s = slice(lo, min(T, lo + step))
-        A, b, terms = _hypothesis_information(
+        J, b, terms = _hypothesis_information(
             x[s], reported[s], ranges[s], trusted[s], noise, ~undetermined[s]
         )
         tr = trusted[s]
-        J = np.einsum("tj,tjab->tab", tr.astype(float), A)
         J[:, np.arange(3 * n), np.arange(3 * n)] += prior_info[s].reshape(-1, 3 * n)
         P0 = _inverse(J)
         C0 = _blocks(P0)  # (t, n, 3, 3)
@@ -354,7 +370,7 @@ def assess(
         v0 = np.diagonal(C0, axis1=-2, axis2=-1)[:, None]
         redo = tr & ~(np.isfinite(vj) & (vj > 0) & (vj <= 1e3 * v0)).all(axis=(2, 3))
         for a, j in zip(*np.nonzero(redo), strict=True):
-            Pa = _inverse(J[a] - A[a, j])
+            Pa = _inverse(J[a] - _hypothesis_matrix(terms, a, j))
             Cj[a, j] = _blocks(Pa)
             dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
         dj = np.where(np.isfinite(exact[s]), exact[s], dj)  # re-solved where the set is small

@@ -28,7 +28,9 @@ def keyring(n: int = 4) -> Keyring:
 
 
 def report(keys: Keyring, step: int = 0, drone: int = 1) -> Report:
-    return keys.sign(Report(step, drone, np.array([1.0, 2.0, 3.0]), "gnss", np.array([np.nan, 5.0, 6.0, 7.0]), None))
+    return keys.sign(
+        Report(step, drone, np.array([1.0, 2.0, 3.0]), "gnss", np.array([np.nan, 5.0, 6.0, 7.0]), None)
+    )
 
 
 def test_a_remembered_check_answers_only_the_same_bytes_and_signature() -> None:

@@ -26,7 +26,7 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
-from swarmraft.protocol.memo import BoundedMemo
+from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
@@ -290,7 +290,7 @@ class RecordMemo:
         drone decodes every committed record, and each keeps the newest (`Applied`, the
         audit's priors); shared, 64 drones hold one copy of each record and its n reports
         instead of 64 (385 MB of a 5 s mission of 64 drones were such copies)."""
-        key = b"bytes" + hashlib.sha256(data).digest()
+        key = b"bytes" + record_digest(data)
         rec = self._held.get(key)
         if rec is None:
             rec = StepRecord.decode(data)

@@ -121,34 +121,59 @@ def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, 
     is gathered from P0's columns and S_j is small (3 + n): about 4 n^4 operations for all
     hypotheses instead of n inversions of 3n x 3n (18 n^4, and 10x slower in practice at
     n = 64). Where S_j is nearly singular (drone j's measurements fix something nothing else
-    does) the identity loses precision; `assess` recomputes those hypotheses exactly."""
+    does) the identity loses precision; `assess` recomputes those hypotheses exactly.
+
+    The hypotheses go in groups of at most `_WOODBURY_FLOATS` of working arrays (about six
+    of T x N x (3 + n) floats per hypothesis: all at once, 2 GB at n = 256); up to n = 64
+    (with T = 1) that is all of them in one group."""
+    T, N, _ = P0.shape
+    n = N // 3
+    group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + n)))
+    if group >= n:
+        return _without_some(P0, b, t, 0, n)
+    Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
+    for lo in range(0, n, group):
+        hi = min(n, lo + group)
+        Cj[:, lo:hi], dj[:, lo:hi] = _without_some(P0, b, t, lo, hi)
+    return Cj, dj
+
+
+_WOODBURY_FLOATS = 32_000_000  # 256 MB: the working arrays of one group of hypotheses
+
+
+def _without_some(P0: np.ndarray, b: np.ndarray, t: Terms, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_without_each` for the hypotheses j in lo:hi: (T, hi - lo, n, 3, 3), (T, hi - lo, n, 3)."""
     T, N, _ = P0.shape
     n = N // 3
     m = 3 + n
+    js = slice(lo, hi)
+    h = hi - lo
     Gh = np.linalg.cholesky(t.G)  # G = Gh Gh'
-    sw = np.sqrt(t.w)  # (T, j, k)
+    sw = np.sqrt(t.w[:, js])  # (T, j, k)
+    u = t.u[:, js]  # (T, j, k, 3)
+    gnss = t.gnss[:, js]
     Pb = P0.reshape(T, N, n, 3).transpose(0, 2, 1, 3)  # (T, drone, N, 3): P0's columns by drone
-    uT = np.swapaxes(t.u, -1, -2)  # (T, j, 3, k)
-    X = np.empty((T, n, N, m))
-    X[..., :3] = (Pb @ Gh) * t.gnss[:, :, None, None]
+    uT = np.swapaxes(u, -1, -2)  # (T, j, 3, k)
+    X = np.empty((T, h, N, m))
+    X[..., :3] = (Pb[:, js] @ Gh) * gnss[:, :, None, None]
     # range j -> k: sqrt(w) (P0[:, j] - P0[:, k]) u_jk
-    own = Pb @ uT  # (T, j, N, k): P0[:, j] u_jk
-    other = (Pb @ np.swapaxes(t.u, 1, 2).transpose(0, 1, 3, 2)).transpose(0, 3, 2, 1)  # P0[:, k] u_jk
+    own = Pb[:, js] @ uT  # (T, j, N, k): P0[:, j] u_jk
+    other = (Pb @ np.swapaxes(u, 1, 2).transpose(0, 1, 3, 2)).transpose(0, 3, 2, 1)  # P0[:, k] u_jk
     X[..., 3:] = sw[:, :, None, :] * (own - other)
-    Xr = X.reshape(T, n, n, 3, m)  # rows of X_j by drone and axis
-    idx = np.arange(n)
-    Xj = Xr[:, idx, idx]  # (T, j, 3, m): drone j's own rows
-    UtX = np.empty((T, n, m, m))
-    UtX[:, :, :3] = (Gh.T @ Xj) * t.gnss[:, :, None, None]
-    UtX[:, :, 3:] = sw[..., None] * (t.u @ Xj - (t.u[..., None] * Xr).sum(axis=-2))
+    Xr = X.reshape(T, h, n, 3, m)  # rows of X_j by drone and axis
+    Xj = Xr[:, np.arange(h), np.arange(lo, hi)]  # (T, j, 3, m): drone j's own rows
+    UtX = np.empty((T, h, m, m))
+    UtX[:, :, :3] = (Gh.T @ Xj) * gnss[:, :, None, None]
+    UtX[:, :, 3:] = sw[..., None] * (u @ Xj - (u[..., None] * Xr).sum(axis=-2))
     S = np.eye(m) - UtX
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     Z = np.linalg.solve(S, np.swapaxes(X, -1, -2))  # (T, j, m, N): S_j^-1 X_j'
-    Zr = Z.reshape(T, n, m, n, 3).transpose(0, 1, 3, 2, 4)  # (T, j, i, m, 3)
+    Zr = Z.reshape(T, h, m, n, 3).transpose(0, 1, 3, 2, 4)  # (T, j, i, m, 3)
     Cj = _blocks(P0)[:, None] + Xr @ Zr
-    P0b = (P0[:, None] @ b[..., None])[..., 0]  # (T, j, N)
-    dj = P0b + (X @ (Z @ b[..., None]))[..., 0]
-    return Cj, dj.reshape(T, n, n, 3)
+    bj = b[:, js, :, None]
+    P0b = (P0[:, None] @ bj)[..., 0]  # (T, j, N)
+    dj = P0b + (X @ (Z @ bj))[..., 0]
+    return Cj, dj.reshape(T, h, n, 3)
 
 
 def _hypothesis_information(

@@ -352,8 +352,8 @@ def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
     trusted = np.ones((2, n), bool)
     trusted[:, :untrusted] = False
     noise = NoiseModel(gnss_cov=gnss_covariance(1.5, 3.0), range_sigma=0.1)
-    A, b, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, np.ones((2, n), bool))
-    J = A.sum(axis=1)
+    J, b, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, np.ones((2, n), bool))
+    A = np.array([[itg._hypothesis_matrix(terms, a, j) for j in range(n)] for a in range(2)])
     P0 = itg._inverse(J)
     Cj, dj = itg._without_each(P0, b, terms)
     Pj = np.linalg.inv(J[:, None] - A)
@@ -376,6 +376,66 @@ def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
     # P0 carries `_inverse`'s ridge (1e-10 of the largest information): about 1e-7 of the scale
     assert np.allclose(Cj[ok], want_C[ok], rtol=1e-6, atol=1e-6 * np.abs(want_C[ok]).max())
     assert np.allclose(dj[ok], want_d[ok], rtol=1e-6, atol=1e-6 * np.abs(want_d[ok]).max())
+
+
+def test_hypotheses_in_groups_are_the_hypotheses_all_at_once(monkeypatch):
+    """At large n `_without_each` takes the hypotheses in groups (its working arrays would
+    be 2 GB at n = 256): the groups must give what all at once gives, uneven last group
+    included."""
+    from swarmraft.estimation import integrity as itg
+
+    rng = np.random.default_rng(5)
+    T, n = 2, 13
+    x = rng.uniform(0, 100, (T, n, 3))
+    reported = x + rng.normal(0, 2, x.shape)
+    ranges = true_distances(x) + rng.normal(0, 0.1, (T, n, n))
+    ranges[rng.random(ranges.shape) < 0.2] = np.nan
+    trusted = rng.random((T, n)) < 0.8
+    noise = NoiseModel(gnss_cov=gnss_covariance(1.5, 3.0), range_sigma=0.1)
+    J, b, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, np.ones((T, n), bool))
+    P0 = itg._inverse(J)
+    whole = itg._without_each(P0, b, terms)
+    monkeypatch.setattr(itg, "_WOODBURY_FLOATS", 6 * T * 3 * n * (3 + n) * 4)  # groups of 4: 4+4+4+1
+    grouped = itg._without_each(P0, b, terms)
+    for a, w in zip(grouped, whole, strict=True):
+        assert a.shape == w.shape
+        assert np.allclose(a, w, rtol=1e-12, atol=1e-12 * np.abs(w).max())
+
+
+def test_the_trusted_information_is_the_sum_of_each_hypothesis_information():
+    """`_hypothesis_information` builds the trusted set's information J from measurement
+    terms, without the n hypothesis matrices; `_hypothesis_matrix` builds one. Both must be
+    the Fisher information written out measurement by measurement: drone j's GNSS report
+    (if trusted) and each range it measured to a kept drone (if j is trusted and kept)."""
+    from swarmraft.estimation import integrity as itg
+
+    rng = np.random.default_rng(11)
+    T, n = 2, 7
+    x = rng.uniform(0, 100, (T, n, 3))
+    reported = x + rng.normal(0, 2, x.shape)
+    ranges = true_distances(x) + rng.normal(0, 0.1, (T, n, n))
+    ranges[rng.random(ranges.shape) < 0.3] = np.nan
+    trusted = rng.random((T, n)) < 0.7
+    keep = rng.random((T, n)) < 0.8
+    noise = NoiseModel(gnss_cov=gnss_covariance(1.5, 3.0), range_sigma=0.1)
+    G = np.linalg.inv(noise.gnss_cov)
+    J, _, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, keep)
+    for a in range(T):
+        total = np.zeros((3 * n, 3 * n))
+        for j in range(n):
+            want = np.zeros((3 * n, 3 * n))
+            if trusted[a, j]:
+                want[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] += G
+                for k in range(n):
+                    if k == j or np.isnan(ranges[a, j, k]) or not (keep[a, j] and keep[a, k]):
+                        continue
+                    u = (x[a, j] - x[a, k]) / np.linalg.norm(x[a, j] - x[a, k])
+                    e = np.zeros(n)
+                    e[j], e[k] = 1.0, -1.0
+                    want += np.kron(np.outer(e, e), np.outer(u, u)) / noise.range_sigma**2
+            assert np.allclose(itg._hypothesis_matrix(terms, a, j), want, rtol=1e-12, atol=1e-9)
+            total += want
+        assert np.allclose(J[a], total, rtol=1e-12, atol=1e-9)
 
 
 def test_a_drone_that_only_it_measures_is_not_given_a_protection_level():

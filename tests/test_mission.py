@@ -193,6 +193,27 @@ def test_a_drone_keeps_only_its_newest_records_and_the_mission_log_every_step():
     assert np.isfinite(log.verified[5:RECORDS_KEPT]).any(axis=(1, 2)).all()
 
 
+def test_a_drone_keeps_only_its_newest_skipped_steps():
+    from swarmraft.protocol.drone import SKIPPED_KEPT, Applied
+
+    d = SwarmDrone(0, ProtocolConfig(n=4), Keyring.generate(4, np.random.default_rng(0)))
+    z = np.zeros((4, 3))
+
+    def rec(k: int) -> bytes:
+        return StepRecord(k, 1, z + k, np.zeros(4, bool), np.zeros(4, bool), "ok", "joint", str(k)).encode()
+
+    d.apply(rec(0))
+    d.apply(rec(10 * SKIPPED_KEPT))  # a long gap: only its newest steps are kept
+    assert d.state.skipped == list(range(9 * SKIPPED_KEPT, 10 * SKIPPED_KEPT))
+    gaps = []
+    for k in range(10 * SKIPPED_KEPT + 2, 12 * SKIPPED_KEPT + 12, 2):  # many short gaps
+        d.apply(rec(k))
+        gaps.append(k - 1)
+    assert d.state.skipped == gaps[-SKIPPED_KEPT:]
+    assert Applied.decode(d.state.encode()).skipped == gaps[-SKIPPED_KEPT:]
+    assert len(d.state.encode()) < 8 * SKIPPED_KEPT + len(Applied(records=d.state.records).encode()) + 1
+
+
 def test_a_record_the_data_did_not_settle_is_not_carried_on():
     # an alarm or unidentifiable record's flags are what the data could not decide: the next
     # verification takes its prior and latched flags from the newest settled record instead

@@ -83,6 +83,29 @@ def test_uwb_nlos_per_link_shares_the_bias_in_both_directions(rng, mode):
         assert np.abs(bias - back).max() > 0.1
 
 
+@pytest.mark.parametrize(
+    "model",
+    [
+        UWBRanging(0.1),
+        UWBRanging(0.1, max_range=60.0, symmetric=True),
+        UWBRanging(0.1, nlos_prob=0.3),
+        UWBRanging(0.1, nlos_prob=0.3, nlos_mode="direction"),
+    ],
+)
+def test_uwb_many_steps_at_once_are_the_steps_one_by_one(model, monkeypatch):
+    """`measure_steps` (a mission's world, built in chunks of steps) must give exactly what
+    measuring step by step gives, and leave the generator where step by step leaves it."""
+    from swarmraft.world import ranging
+
+    monkeypatch.setattr(ranging, "_CHUNK_FLOATS", 3 * 7 * 7 * 4)  # chunks of 4 steps: 23 = 5 x 4 + 3
+    pos = np.random.default_rng(0).uniform(0, 80, (23, 7, 3))
+    one, many = np.random.default_rng(1), np.random.default_rng(1)
+    want = np.stack([model.measure(one, p[None])[0] for p in pos])
+    got = model.measure_steps(many, pos)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert one.random() == many.random()
+
+
 def test_uwb_nlos_mode_is_validated():
     with pytest.raises(ValueError, match="nlos_mode"):
         UWBRanging(nlos_prob=0.1, nlos_mode="path")

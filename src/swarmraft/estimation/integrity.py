@@ -121,34 +121,59 @@ def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, 
     is gathered from P0's columns and S_j is small (3 + n): about 4 n^4 operations for all
     hypotheses instead of n inversions of 3n x 3n (18 n^4, and 10x slower in practice at
     n = 64). Where S_j is nearly singular (drone j's measurements fix something nothing else
-    does) the identity loses precision; `assess` recomputes those hypotheses exactly."""
+    does) the identity loses precision; `assess` recomputes those hypotheses exactly.
+
+    The hypotheses go in groups of at most `_WOODBURY_FLOATS` of working arrays (about six
+    of T x N x (3 + n) floats per hypothesis: all at once, 2 GB at n = 256); up to n = 64
+    (with T = 1) that is all of them in one group."""
+    T, N, _ = P0.shape
+    n = N // 3
+    group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + n)))
+    if group >= n:
+        return _without_some(P0, b, t, 0, n)
+    Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
+    for lo in range(0, n, group):
+        hi = min(n, lo + group)
+        Cj[:, lo:hi], dj[:, lo:hi] = _without_some(P0, b, t, lo, hi)
+    return Cj, dj
+
+
+_WOODBURY_FLOATS = 32_000_000  # 256 MB: the working arrays of one group of hypotheses
+
+
+def _without_some(P0: np.ndarray, b: np.ndarray, t: Terms, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_without_each` for the hypotheses j in lo:hi: (T, hi - lo, n, 3, 3), (T, hi - lo, n, 3)."""
     T, N, _ = P0.shape
     n = N // 3
     m = 3 + n
+    js = slice(lo, hi)
+    h = hi - lo
     Gh = np.linalg.cholesky(t.G)  # G = Gh Gh'
-    sw = np.sqrt(t.w)  # (T, j, k)
+    sw = np.sqrt(t.w[:, js])  # (T, j, k)
+    u = t.u[:, js]  # (T, j, k, 3)
+    gnss = t.gnss[:, js]
     Pb = P0.reshape(T, N, n, 3).transpose(0, 2, 1, 3)  # (T, drone, N, 3): P0's columns by drone
-    uT = np.swapaxes(t.u, -1, -2)  # (T, j, 3, k)
-    X = np.empty((T, n, N, m))
-    X[..., :3] = (Pb @ Gh) * t.gnss[:, :, None, None]
+    uT = np.swapaxes(u, -1, -2)  # (T, j, 3, k)
+    X = np.empty((T, h, N, m))
+    X[..., :3] = (Pb[:, js] @ Gh) * gnss[:, :, None, None]
     # range j -> k: sqrt(w) (P0[:, j] - P0[:, k]) u_jk
-    own = Pb @ uT  # (T, j, N, k): P0[:, j] u_jk
-    other = (Pb @ np.swapaxes(t.u, 1, 2).transpose(0, 1, 3, 2)).transpose(0, 3, 2, 1)  # P0[:, k] u_jk
+    own = Pb[:, js] @ uT  # (T, j, N, k): P0[:, j] u_jk
+    other = (Pb @ np.swapaxes(u, 1, 2).transpose(0, 1, 3, 2)).transpose(0, 3, 2, 1)  # P0[:, k] u_jk
     X[..., 3:] = sw[:, :, None, :] * (own - other)
-    Xr = X.reshape(T, n, n, 3, m)  # rows of X_j by drone and axis
-    idx = np.arange(n)
-    Xj = Xr[:, idx, idx]  # (T, j, 3, m): drone j's own rows
-    UtX = np.empty((T, n, m, m))
-    UtX[:, :, :3] = (Gh.T @ Xj) * t.gnss[:, :, None, None]
-    UtX[:, :, 3:] = sw[..., None] * (t.u @ Xj - (t.u[..., None] * Xr).sum(axis=-2))
+    Xr = X.reshape(T, h, n, 3, m)  # rows of X_j by drone and axis
+    Xj = Xr[:, np.arange(h), np.arange(lo, hi)]  # (T, j, 3, m): drone j's own rows
+    UtX = np.empty((T, h, m, m))
+    UtX[:, :, :3] = (Gh.T @ Xj) * gnss[:, :, None, None]
+    UtX[:, :, 3:] = sw[..., None] * (u @ Xj - (u[..., None] * Xr).sum(axis=-2))
     S = np.eye(m) - UtX
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     Z = np.linalg.solve(S, np.swapaxes(X, -1, -2))  # (T, j, m, N): S_j^-1 X_j'
-    Zr = Z.reshape(T, n, m, n, 3).transpose(0, 1, 3, 2, 4)  # (T, j, i, m, 3)
+    Zr = Z.reshape(T, h, m, n, 3).transpose(0, 1, 3, 2, 4)  # (T, j, i, m, 3)
     Cj = _blocks(P0)[:, None] + Xr @ Zr
-    P0b = (P0[:, None] @ b[..., None])[..., 0]  # (T, j, N)
-    dj = P0b + (X @ (Z @ b[..., None]))[..., 0]
-    return Cj, dj.reshape(T, n, n, 3)
+    bj = b[:, js, :, None]
+    P0b = (P0[:, None] @ bj)[..., 0]  # (T, j, N)
+    dj = P0b + (X @ (Z @ bj))[..., 0]
+    return Cj, dj.reshape(T, h, n, 3)
 
 
 def _hypothesis_information(
@@ -159,12 +184,17 @@ def _hypothesis_information(
     noise: NoiseModel,
     keep: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, Terms]:
-    """Per drone j (as one fault hypothesis): the Fisher information A (T, n, 3n, 3n) of its
-    GNSS report (if trusted) and the ranges it measured (if trusted) to drones in ``keep``
-    (T, n), and their gradient b (T, n, 3n) at x. The trusted set's information is the sum
-    over j. Drones outside ``keep`` (undetermined) take no part: an estimate that is still
-    crawling along a direction the geometry does not fix would spoil the others'. The third
-    result holds the same information as measurement terms (`Terms`)."""
+    """Per drone j (as one fault hypothesis), the information of its GNSS report (if
+    trusted) and of the ranges it measured (if trusted) to drones in ``keep`` (T, n), as
+    measurement terms (`Terms`), and their gradient b (T, n, 3n) at x; also the trusted
+    set's information J (T, 3n, 3n), the sum over j of each hypothesis' information A_j.
+    Drones outside ``keep`` (undetermined) take no part: an estimate that is still crawling
+    along a direction the geometry does not fix would spoil the others'.
+
+    J is built from the terms, not from the A_j (n matrices of 3n x 3n: 1.2 GB at n = 256);
+    `_hypothesis_matrix` builds one A_j where it is needed. J equals summing the A_j over j
+    in order bit for bit: an off-diagonal block gets two terms, a diagonal one is summed in
+    the same order of j."""
     T, n, _ = x.shape
     G = np.linalg.inv(noise.gnss_cov)
     w_r = 1.0 / noise.range_sigma**2
@@ -175,21 +205,33 @@ def _hypothesis_information(
     meas &= keep[:, :, None] & keep[:, None, :]
     r = np.where(meas, dist - np.nan_to_num(ranges), 0.0)
     uu = np.einsum("tjk,tjka,tjkb->tjkab", meas * w_r, u, u)  # (T, j, k, 3, 3)
-    A = np.zeros((T, n, n, 3, n, 3))
     idx = np.arange(n)
-    # block (j, j): GNSS + sum_k w u u^T; blocks (k, k): w u u^T; (j, k), (k, j): -w u u^T
-    A[:, idx, idx, :, idx, :] = (np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)).transpose(
-        1, 0, 2, 3
-    )
-    A[:, idx[:, None], idx[None, :], :, idx[None, :], :] += uu.transpose(1, 2, 0, 3, 4)
-    A[:, idx[:, None], idx[:, None], :, idx[None, :], :] -= uu.transpose(1, 2, 0, 3, 4)
-    A[:, idx[:, None], idx[None, :], :, idx[:, None], :] -= uu.transpose(1, 2, 0, 3, 4)
+    # A_j: block (j, j) GNSS + sum_k w u u^T; blocks (k, k) w u u^T; (j, k), (k, j) -w u u^T.
+    # In J, block (p, q) (p != q) is -uu[p, q] - uu[q, p]; block (p, p) sums over j the
+    # own block (j = p) and uu[j, p] (j != p)
+    J = -(uu + np.swapaxes(uu, 1, 2)).transpose(0, 1, 3, 2, 4)  # (T, p, 3, q, 3)
+    diag = uu.copy()
+    diag[:, idx, idx] = np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)
+    J[:, idx, :, idx, :] = diag.sum(axis=1).transpose(1, 0, 2, 3)  # in order of j
     b = np.zeros((T, n, n, 3))
     e = np.where(trusted[..., None], np.einsum("ab,tjb->tja", G, x - reported), 0.0)
     b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
     b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
     terms = Terms(np.where(trusted, 1.0, 0.0), G, u, meas * w_r)
-    return A.reshape(T, n, 3 * n, 3 * n), b.reshape(T, n, 3 * n), terms
+    return J.reshape(T, 3 * n, 3 * n), b.reshape(T, n, 3 * n), terms
+
+
+def _hypothesis_matrix(t: Terms, a: int, j: int) -> np.ndarray:
+    """Hypothesis j's information A_j (3n, 3n) in trial a, from its terms (see `Terms`)."""
+    n = t.w.shape[1]
+    uu = np.einsum("k,ka,kb->kab", t.w[a, j], t.u[a, j], t.u[a, j])  # (k, 3, 3)
+    A = np.zeros((n, 3, n, 3))
+    idx = np.arange(n)
+    A[idx, :, idx, :] = uu
+    A[j, :, j, :] = t.gnss[a, j] * t.G + uu.sum(axis=0)
+    A[j, :, :, :] -= uu.transpose(1, 0, 2)
+    A[:, :, j, :] -= uu
+    return A.reshape(3 * n, 3 * n)
 
 
 def too_few_without_one(
@@ -364,11 +406,10 @@ def assess(
     step = max(1, _MEMORY_FLOATS // (n * (3 * n) ** 2))
     for lo in range(0, T, step):
         s = slice(lo, min(T, lo + step))
-        A, b, terms = _hypothesis_information(
+        J, b, terms = _hypothesis_information(
             x[s], reported[s], ranges[s], trusted[s], noise, ~undetermined[s]
         )
         tr = trusted[s]
-        J = np.einsum("tj,tjab->tab", tr.astype(float), A)
         J[:, np.arange(3 * n), np.arange(3 * n)] += prior_info[s].reshape(-1, 3 * n)
         P0 = _inverse(J)
         C0 = _blocks(P0)  # (t, n, 3, 3)
@@ -387,7 +428,7 @@ def assess(
         v0 = np.diagonal(C0, axis1=-2, axis2=-1)[:, None]
         redo = tr & ~(np.isfinite(vj) & (vj > 0) & (vj <= 1e3 * v0)).all(axis=(2, 3))
         for a, j in zip(*np.nonzero(redo), strict=True):
-            Pa = _inverse(J[a] - A[a, j])
+            Pa = _inverse(J[a] - _hypothesis_matrix(terms, a, j))
             Cj[a, j] = _blocks(Pa)
             dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
         dj = np.where(np.isfinite(exact[s]), exact[s], dj)  # re-solved where the set is small

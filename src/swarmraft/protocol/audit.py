@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, memo_compute
-from swarmraft.protocol.memo import BoundedMemo
+from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.raft import Entry, EntryKind
 
@@ -116,10 +116,10 @@ class Auditor:
     # -- the records this drone holds --------------------------------------------------------
     def passed(self, data: bytes) -> bool:
         """Whether this drone already checked ``data`` and it passed."""
-        return _digest(data) in self._passed
+        return record_digest(data) in self._passed
 
     def _hold(self, data: bytes, rec: StepRecord) -> None:
-        self._passed[_digest(data)] = None
+        self._passed[record_digest(data)] = None
         while len(self._passed) > 4 * KEEP_STEPS:
             self._passed.popitem(last=False)
         self.seen.setdefault(rec.step, []).append(rec)
@@ -166,7 +166,7 @@ class Auditor:
 
     def _evidence(self, data: bytes, rec: StepRecord) -> str | None:
         """The checks that depend only on the bytes (memoised in ``cache``)."""
-        key = _digest(data)
+        key = record_digest(data)
         if self.cache is not None and key in self.cache:
             return self.cache[key]
         reason = self._evidence_uncached(rec, data[: len(data) - len(rec.signature)])

@@ -26,7 +26,7 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
-from swarmraft.protocol.memo import BoundedMemo
+from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
@@ -60,12 +60,16 @@ class ProtocolConfig:
 #: log, the networked drone's records file). Keeping all of them grew by 16.5 MB a minute in
 #: a 17-drone mission.
 RECORDS_KEPT = 32
+#: skipped steps a drone keeps (the newest): the protocol reads none of them; they tell a
+#: host or a snapshot's reader which recent steps were passed over. Unbounded, a swarm that
+#: loses its leader for good grew the list (and every snapshot) by 10 steps a second.
+SKIPPED_KEPT = 256
 
 
 @dataclass
 class Applied:
-    """A drone's replicated state: the newest RECORDS_KEPT records by step, and the steps
-    passed over."""
+    """A drone's replicated state: the newest RECORDS_KEPT records by step, and the newest
+    SKIPPED_KEPT steps passed over."""
 
     records: dict[int, StepRecord] = field(default_factory=dict)
     skipped: list[int] = field(default_factory=list)
@@ -197,7 +201,9 @@ class SwarmDrone:
         if rec.step <= st.last_step:
             st.ignored += 1
             return None
-        st.skipped.extend(range(st.last_step + 1, rec.step))
+        st.skipped.extend(range(max(st.last_step + 1, rec.step - SKIPPED_KEPT), rec.step))
+        if len(st.skipped) > SKIPPED_KEPT:
+            del st.skipped[: len(st.skipped) - SKIPPED_KEPT]
         st.records[rec.step] = rec
         st.last_step = rec.step
         while len(st.records) > RECORDS_KEPT:
@@ -284,7 +290,7 @@ class RecordMemo:
         drone decodes every committed record, and each keeps the newest (`Applied`, the
         audit's priors); shared, 64 drones hold one copy of each record and its n reports
         instead of 64 (385 MB of a 5 s mission of 64 drones were such copies)."""
-        key = b"bytes" + hashlib.sha256(data).digest()
+        key = b"bytes" + record_digest(data)
         rec = self._held.get(key)
         if rec is None:
             rec = StepRecord.decode(data)

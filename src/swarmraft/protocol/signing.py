@@ -1,17 +1,27 @@
 """Report signatures: one Ed25519 key pair per drone (PyNaCl, chosen by the measurement in
 `benchmarks/bench_crypto.py`: it verifies about twice as fast as `cryptography`). The leader
 drops reports whose signature does not verify against the sender's public key. The same
-32-byte seed is a drone's key for its reports and for its datagrams (`swarmraft.net.auth`)."""
+32-byte seed is a drone's key for its reports and for its datagrams (`swarmraft.net.auth`).
+
+A report is verified several times where it travels (its sender's censorship note, the
+leader's note and inbox, each auditor's evidence check; in the simulator every drone shares
+one keyring): `Keyring` remembers the outcome per (drone, signature, digest of the bytes) for
+the last `MEMO_STEPS` steps' worth of signatures, so each signature is checked once."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import hashlib
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from nacl.exceptions import BadSignatureError
 from nacl.signing import SigningKey, VerifyKey
 
+from swarmraft.protocol.memo import BoundedMemo
 from swarmraft.protocol.records import Report
+
+#: steps' worth of signature checks (one per drone and step, plus the record's) remembered
+MEMO_STEPS = 32
 
 
 @dataclass(frozen=True)
@@ -20,6 +30,10 @@ class Keyring:
 
     private: dict[int, SigningKey]
     public: dict[int, VerifyKey]
+    checked: BoundedMemo = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "checked", BoundedMemo(MEMO_STEPS * (len(self.public) + 1)))
 
     @classmethod
     def generate(cls, n: int, rng: np.random.Generator) -> Keyring:
@@ -41,8 +55,18 @@ class Keyring:
         key = self.public.get(drone)
         if key is None:
             return False
-        try:
-            key.verify(data, signature)
-        except (BadSignatureError, ValueError, TypeError):
-            return False
-        return True
+        if not isinstance(signature, bytes | bytearray) or not isinstance(data, bytes | bytearray):
+            return _check(key, data, signature)  # not bytes: refused there, nothing to remember
+        memo = (drone, bytes(signature), hashlib.sha256(data).digest())
+        ok = self.checked.get(memo)
+        if ok is None:
+            ok = self.checked[memo] = _check(key, data, signature)
+        return ok
+
+
+def _check(key: VerifyKey, data: bytes, signature: bytes) -> bool:
+    try:
+        key.verify(data, signature)
+    except (BadSignatureError, ValueError, TypeError):
+        return False
+    return True

@@ -105,12 +105,11 @@ def world_log(w: ScenarioWorld) -> MissionLog:
         report_messages=resident_zeros(S, int),
         ins_sigma_window=ins_sigma(w.grade, sc.protocol.innovation_window_s),
     )
-    for k in range(S):
-        truth = traj.positions[k]
-        log.gnss[k] = w.gnss_output(k)
-        log.honest_gnss[k] = truth + w.gnss_err[k]
-        log.spoofed[k], log.outage[k] = w.spoofed[k], ~w.has_fix[k]
-        log.ins_alone[k] = truth + w.drift.error(np.full(n, traj.t[k]))
+    truth = traj.positions[:S]
+    log.gnss[:] = w.gnss_output(slice(0, S))
+    log.honest_gnss[:] = truth + w.gnss_err[:S]
+    log.spoofed[:], log.outage[:] = w.spoofed[:S], ~w.has_fix[:S]
+    log.ins_alone[:] = truth + w.drift.error(np.broadcast_to(traj.t[:S, None], (S, n)))
     return log
 
 

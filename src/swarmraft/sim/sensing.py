@@ -87,11 +87,10 @@ class ScenarioWorld:
         )
         # In step order, as the simulator draws them (an area spoof fixes its point at its first step).
         fix, has_fix, spoofed = np.empty((S, n, 3)), np.empty((S, n), bool), np.empty((S, n), bool)
-        ranges = np.empty((S, n, n))
+        honest = traj.positions[:S] + gnss_err[:S]
         for k in range(S):
-            truth = traj.positions[k]
-            fix[k], has_fix[k], spoofed[k] = timeline.gnss(traj.t[k], truth, truth + gnss_err[k])
-            ranges[k] = uwb.measure(rng_range, truth[None])[0]
+            fix[k], has_fix[k], spoofed[k] = timeline.gnss(traj.t[k], traj.positions[k], honest[k])
+        ranges = uwb.measure_steps(rng_range, traj.positions[:S])  # its own generator
         window = sc.protocol.innovation_window_s
         # An honest innovation over the window: the Gauss-Markov GNSS error's change plus the
         # INS drift of a fresh integration over the window, per axis (horizontal, vertical).
@@ -137,8 +136,8 @@ class ScenarioWorld:
         )
 
     def gnss_output(self, k: int) -> np.ndarray:
-        """(n, 3) receiver output at step k, nan in an outage."""
-        return np.where(self.has_fix[k][:, None], self.fix[k], np.nan)
+        """(n, 3) receiver output at step k (or (K, n, 3) at steps k, a slice), nan in an outage."""
+        return np.where(self.has_fix[k][..., None], self.fix[k], np.nan)
 
     def ins_estimate(self, k: int, base_t: np.ndarray, base_pos: np.ndarray) -> np.ndarray:
         """(n, 3) each drone's INS estimate at step k: aligned to ``base_pos`` (n, 3) at times

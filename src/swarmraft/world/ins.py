@@ -55,8 +55,9 @@ class InsDrift:
         return cls(accel, gyro)
 
     def error(self, tau: np.ndarray) -> np.ndarray:
-        """Position error (n, 3) after ``tau`` seconds (n,) since each drone's last reset."""
-        tau = np.asarray(tau, float)[:, None]
+        """Position error (..., n, 3) after ``tau`` seconds (..., n) since each drone's last
+        reset (many steps at once: a leading axis)."""
+        tau = np.asarray(tau, float)[..., None]
         return 0.5 * self.accel * tau**2 + self.gyro * tau**3 / 6.0
 
 

@@ -88,6 +88,22 @@ class UWBRanging:
             d = d + bias
         return _finish(d, true, self.max_range)
 
+    def measure_steps(self, rng: np.random.Generator, positions: np.ndarray) -> np.ndarray:
+        """Ranges (S, n, n) of each step's positions (S, n, 3) in turn: exactly what calling
+        `measure` step by step gives, draws included. Without NLOS a call draws only its
+        Gaussian noise, in order, so many steps are measured in one call (a long mission's
+        world took minutes step by step); with NLOS the draws interleave and each step is
+        measured alone."""
+        S, n, _ = positions.shape
+        out = np.empty((S, n, n))
+        chunk = max(1, _CHUNK_FLOATS // (3 * n * n)) if self.nlos_prob == 0 else 1
+        for lo in range(0, S, chunk):
+            out[lo : lo + chunk] = self.measure(rng, positions[lo : lo + chunk])
+        return out
+
+
+_CHUNK_FLOATS = 2_000_000  # per call of `UWBRanging.measure_steps` (its (T, n, n, 3) differences)
+
 
 @dataclass(frozen=True)
 class RSSIRanging:

@@ -1,0 +1,62 @@
+"""Report signatures (`protocol.signing.Keyring`): the memo of checked signatures must give
+what checking again would, and stay bounded."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from swarmraft.protocol import Keyring, Report
+from swarmraft.protocol.signing import MEMO_STEPS
+
+
+class CountingKey:
+    """A public key that counts its signature checks."""
+
+    def __init__(self, key) -> None:  # noqa: ANN001
+        self.key, self.calls = key, 0
+
+    def verify(self, data: bytes, signature: bytes) -> bytes:
+        self.calls += 1
+        return self.key.verify(data, signature)
+
+
+def keyring(n: int = 4) -> Keyring:
+    keys = Keyring.generate(n, np.random.default_rng(3))
+    return Keyring(keys.private, {i: CountingKey(k) for i, k in keys.public.items()})
+
+
+def report(keys: Keyring, step: int = 0, drone: int = 1) -> Report:
+    return keys.sign(
+        Report(step, drone, np.array([1.0, 2.0, 3.0]), "gnss", np.array([np.nan, 5.0, 6.0, 7.0]), None)
+    )
+
+
+def test_a_remembered_check_answers_only_the_same_bytes_and_signature() -> None:
+    keys = keyring()
+    good = report(keys)
+    assert keys.verify(good) and keys.verify(good) and keys.verify(replace(good))
+    assert keys.public[1].calls == 1  # checked once, then remembered
+    # the same signature over other bytes, other bytes' signature, another drone's key: refused
+    moved = replace(good, position=np.array([1.0, 2.0, 3.5]))
+    assert not keys.verify(moved) and not keys.verify(moved)
+    other = report(keys, step=1)
+    assert keys.verify(other)
+    assert not keys.verify(replace(other, signature=good.signature))
+    assert not keys.verify(replace(good, drone=2))
+    assert not keys.verify_bytes(1, good.body(), good.signature[:-1] + bytes([good.signature[-1] ^ 1]))
+    assert not keys.verify_bytes(9, good.body(), good.signature)  # no such drone
+    assert not keys.verify_bytes(1, good.body(), "not bytes")  # type: ignore[arg-type]
+    assert keys.verify(good)
+
+
+def test_the_memo_keeps_only_the_newest_checks() -> None:
+    keys = keyring()
+    limit = MEMO_STEPS * (4 + 1)
+    first = report(keys, step=0)
+    for step in range(limit + 10):
+        assert keys.verify(report(keys, step=step))
+    assert len(keys.checked) == limit
+    calls = keys.public[1].calls
+    assert keys.verify(first) and keys.public[1].calls == calls + 1  # forgotten: checked again

@@ -286,7 +286,8 @@ class Mission:
                 continue
             pos, source = (fix[i], "gnss") if has_fix[i] else (ins[i], "ins")
             innov = self._innovation(k, i) if has_fix[i] else None
-            report = self.drones[i].make_report(k, pos, source, ranges[i], innov)
+            drift = w.innovations(k, i) if has_fix[i] else None
+            report = self.drones[i].make_report(k, pos, source, ranges[i], innov, drift)
             log.reported[k, i] = pos
             self._send_report(node, report)
             if self.auditing:
@@ -336,7 +337,10 @@ class Mission:
                 continue
             source = "gnss" if not self.log.outage[k, i] else "ins"
             innov = self._innovation(k, i) if source == "gnss" else None
-            report = self.drones[i].make_report(k, self.log.reported[k, i], source, self._rows[k][i], innov)
+            drift = self.world.innovations(k, i) if source == "gnss" else None
+            report = self.drones[i].make_report(
+                k, self.log.reported[k, i], source, self._rows[k][i], innov, drift
+            )
             self._send_report(node, report)
 
     def _receive(self, node: int, data: bytes) -> None:

@@ -32,6 +32,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.stats import chi2, norm
 
+from swarmraft.protocol.records import UNSETTLED, StepRecord
+
 
 @dataclass(frozen=True)
 class DriftModel:
@@ -92,8 +94,8 @@ def window_innovations(reports: dict, n: int, windows: int) -> np.ndarray:
 
 def drift_test(innov: np.ndarray, pool: np.ndarray, model: DriftModel) -> DriftVerdict:
     """The test on ``innov`` (n, M, 3) (newest window first, nan: none), the swarm-wide
-    mean over the drones in ``pool`` (n,) bool. A drone's length-m mean counts only if its
-    m newest windows all have innovations."""
+    mean over the drones in ``pool`` (n,) bool. A drone's
+    length-m mean counts only if its m newest windows all have innovations."""
     M = model.windows
     var = model.variance()  # (M, 3)
     finite = np.isfinite(innov).all(axis=2)  # (n, M)
@@ -102,6 +104,8 @@ def drift_test(innov: np.ndarray, pool: np.ndarray, model: DriftModel) -> DriftV
     means = sums / np.arange(1, M + 1)[None, :, None]  # (n, M, 3)
     chi = np.where(valid, np.sum(means**2 / var[None], axis=2), 0.0)  # (n, M)
     stat = chi.max(axis=1)
+    high = model.threshold(model.false_alarm)
+    low = model.threshold(model.suspect)
     # the swarm: per length m, the mean over the pooled drones with m windows
     use = valid & pool[:, None]
     count = use.sum(axis=0)  # (M,)
@@ -110,8 +114,6 @@ def drift_test(innov: np.ndarray, pool: np.ndarray, model: DriftModel) -> DriftV
     swarm_chi = np.where(count > 0, np.sum(swarm_mean**2 / (var / per), axis=1), 0.0)
     best = int(np.argmax(swarm_chi))
     swarm = float(swarm_chi[best])
-    high = model.threshold(model.false_alarm)
-    low = model.threshold(model.suspect)
     dragged = stat > high
     if swarm > high:
         u = swarm_mean[best] / np.linalg.norm(swarm_mean[best])
@@ -125,10 +127,17 @@ def record_drift(reports: dict, n: int, trusted: np.ndarray, model: DriftModel) 
     return drift_test(window_innovations(reports, n, model.windows), trusted, model)
 
 
-def realigns(faulty: bool, settled: bool, suspect: bool, pulled: bool) -> bool:
-    """Whether a drone aligns its INS track to its position in a committed record: only a
-    drone the record trusts (not flagged), in a settled record (not alarm or unidentifiable),
-    that its own drag-off test does not find suspect, while the swarm is not being pulled (the
-    swarm-wide test above its suspect level). Otherwise the track keeps dead reckoning from its
-    last alignment, so a drag that pulls the committed positions does not pull the tracks."""
-    return not faulty and settled and not suspect and not pulled
+def realigns(rec: StepRecord, i: int, model: DriftModel | None) -> bool:
+    """Whether drone i aligns its INS track to its position in the committed record ``rec``:
+    only if the record trusts it (not flagged), is settled (not alarm or unidentifiable), its
+    own drag-off test does not find it suspect, and the swarm is not *being pulled*: the
+    mean innovation of the drones the record trusts is not above the suspect level of the
+    drag-off test. Otherwise its track keeps dead reckoning from its last alignment, so a drag
+    that pulls the committed positions does not pull the tracks. A pure function of the
+    record (its reports carry the test's input): every drone decides the same."""
+    if rec.faulty[i] or rec.status in UNSETTLED or not np.isfinite(rec.positions[i]).all():
+        return False
+    if model is None:
+        return True
+    v = record_drift({r.drone: r for r in rec.reports}, len(rec.faulty), ~rec.faulty & ~rec.missing, model)
+    return not (v.suspect[i] or v.pulled)

@@ -26,14 +26,12 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
-from swarmraft.protocol.drift import DriftModel, record_drift
+from swarmraft.protocol.drift import DriftModel, DriftVerdict, record_drift
 from swarmraft.protocol.memo import BoundedMemo
-from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
+from swarmraft.protocol.records import UNSETTLED, Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
 MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
-#: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
-UNSETTLED = frozenset({"alarm", "unidentifiable"})
 #: how far back the leader looks for a record to carry on (steps)
 PRIOR_STEPS = 3
 
@@ -357,6 +355,32 @@ class Prior(NamedTuple):
     faulty: np.ndarray
 
 
+def ins_fallback(
+    reports: dict[int, Report],
+    present: np.ndarray,
+    faulty: np.ndarray,
+    before: np.ndarray,
+    drift: DriftVerdict,
+) -> np.ndarray | None:
+    """Issue 11 item 5: a verdict whose trusted set disagrees both with the previous committed
+    one (``before``) and with the INS tracks (a drone it flags anew that the drag-off test
+    neither finds dragged nor suspect, or one it trusts anew that the test does) is not committed as it
+    stands: the record is an alarm whose positions (n, 3) are each drone's INS track, its dead
+    reckoning from its last trusted alignment (`drift.realigns`), which no spoof moves. None
+    when the verdict stands (or a drone that would need it sent no INS track)."""
+    changed = present & (faulty != before)
+    against = changed & (faulty != (drift.suspect | drift.dragged))
+    if not against.any():
+        return None
+    ins = np.full((len(present), 3), np.nan)
+    for i, r in reports.items():
+        if r.ins is not None:
+            ins[i] = r.ins
+    if not np.isfinite(ins[present]).all():
+        return None
+    return ins
+
+
 def compute_record(
     step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
 ) -> StepRecord:
@@ -372,8 +396,27 @@ def compute_record(
         reported[i] = r.position
         ranges[i] = r.ranges
     np.fill_diagonal(ranges, 0.0)
-    idx = np.flatnonzero(present)
     prior = last.positions if last is not None else np.full((n, 3), np.nan)
+    # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
+    # the window (a slow drag-off, invisible to one snapshot).
+    gate = np.zeros(n, dtype=bool)
+    sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
+    if c.innovation_gate is not None:
+        for i, r in reports.items():
+            if r.innovation is not None and np.isfinite(r.innovation).all():
+                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+    # Drag-off over time (`protocol.drift`): each drone's window innovations, and their mean
+    # over the drones not already found (a common slow drag of several drones). A drone found
+    # dragged is left out of the snapshot detector, as a drone without a fix (it is placed
+    # from the ranges below), so the detector decides among the others.
+    drift = None
+    dragged = np.zeros(n, dtype=bool)
+    if c.drift is not None:
+        drift = record_drift(reports, n, present & ~gate, c.drift)
+        dragged = present & drift.dragged
+        if (present & ~dragged).sum() < 4:  # too few left for a snapshot verdict
+            dragged[:] = False
+    idx = np.flatnonzero(present & ~dragged)
 
     sub = SnapshotBatch(
         reported[idx][None],
@@ -394,18 +437,7 @@ def compute_record(
     stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
     positions[stuck] = prior[stuck]
     det_faulty = faulty.copy()
-    # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
-    # the window (a slow drag-off, invisible to one snapshot).
-    gate = np.zeros(n, dtype=bool)
-    sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
-    if c.innovation_gate is not None:
-        for i, r in reports.items():
-            if r.innovation is not None and np.isfinite(r.innovation).all():
-                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
-    # Drag-off over time: each drone's window innovations, and their mean over the drones the
-    # snapshot verdict trusts (a common slow drag of several drones).
-    if c.drift is not None:
-        gate |= present & record_drift(reports, n, present & ~faulty & ~gate, c.drift).dragged
+    gate |= present & (drift.dragged if drift is not None else dragged)
     # Latch: drones flagged in the last record stay suspect until their reports agree with
     # the trusted drones again.
     before = last.faulty if last is not None else np.zeros(n, dtype=bool)
@@ -421,7 +453,8 @@ def compute_record(
             h = np.flatnonzero(present | np.isfinite(ranges[present]).any(axis=0))
             # started from the detector's positions (the shape every range fixes): from the
             # reports alone, with 4 of 9 drones untrusted, Gauss-Newton ended 40 m off
-            x0 = np.where(np.isfinite(positions), positions, start)
+            # (a drone left out of it starts from the prior: its report is spoofed)
+            x0 = np.where(np.isfinite(positions), positions, np.where(np.isfinite(prior), prior, start))
             est_h, st = trusted_estimate(
                 start[h][None],
                 ranges[np.ix_(h, h)][None],
@@ -451,6 +484,11 @@ def compute_record(
             vpl[again | found] = np.nan
             if st[0] != "ok" and status == "ok":
                 status = str(st[0])
+    if drift is not None and last is not None:
+        fallback = ins_fallback(reports, present, faulty, last.faulty, drift)
+        if fallback is not None:
+            positions, faulty, status = fallback, (last.faulty | drift.dragged) & present, "alarm"
+            hpl[:], vpl[:] = np.nan, np.nan
     return StepRecord(
         step,
         term,

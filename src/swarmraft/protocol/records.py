@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 _SOURCES = ("gnss", "ins")
+#: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
+UNSETTLED = frozenset({"alarm", "unidentifiable"})
 _REPORT_HEAD = struct.Struct("<iiBBH")  # step, drone, source, parts (bit 0 innovation, 1 drift, 2 ins), n
 _U8 = struct.Struct("<B")
 _RECORD_HEAD = struct.Struct("<iqHiiH")  # step, term, n, leader, prior step, reports

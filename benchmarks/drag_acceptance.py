@@ -45,14 +45,16 @@ def attacked(name: str, seed: int) -> str:
         if name == "coordinated-drag":
             off = d["reported_error_at_first_detection_m"]
             ok &= off < 10
-            parts.append(f"drone {d['drone']} caught after {d['time_to_first_detection_s']:.1f} s at {off:.1f} m")
+            after = d["time_to_first_detection_s"]
+            parts.append(f"drone {d['drone']} caught after {after:.1f} s at {off:.1f} m")
         else:
             err, bound = d["mean_error_after_detection_m"], d["mean_snapshot_bound_after_detection_m"]
             ratio = err / bound if err is not None and bound else float("nan")
             ok &= bool(ratio <= 3)
             parts.append(f"drone {d['drone']} {err:.2f} m = {ratio:.1f}x bound")
     st = s["integrity"]["status_counts"]
-    parts.append(f"alarm records {st.get('alarm', 0)}, wrong-partition steps {s['wrong_partition_step_count']}")
+    wrong = s["wrong_partition_step_count"]
+    parts.append(f"alarm records {st.get('alarm', 0)}, wrong-partition steps {wrong}")
     return f"{name} seed {seed}: {'met' if ok else 'NOT MET'}; " + "; ".join(parts)
 
 
@@ -68,7 +70,9 @@ def honest(name: str, seed: int) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("part", choices=["drag", "crash", "honest"])
-    ap.add_argument("--seeds", default=None, help="a seed or a range: 1-10 (default: drag 1, crash 1-10, honest 1-3)")
+    ap.add_argument(
+        "--seeds", default=None, help="a seed, or a range 1-10 (default: drag 1, crash 1-10, honest 1-3)"
+    )
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args()
     seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10", "honest": "1-3"}[args.part])

@@ -146,13 +146,16 @@ def test_coordinated_drag_is_caught_before_ten_metres_and_honest_drones_stay_bel
 
 
 def test_dragged_drones_ins_tracks_stay_where_they_were_before_suspicion(coordinated_drag):
-    """Once a dragged drone is suspect its INS track is no longer aligned to its committed
-    position (which the drag had pulled): its last alignment is from before its detection,
-    while every honest drone's is from the last second."""
+    """Once a dragged drone is flagged for good its INS track is no longer aligned to its
+    committed position (which the drag had pulled): its last alignment is from before its
+    sustained detection (between the first and the sustained one, a record that clears it
+    while the trusted drones' mean is under the suspect level may still align it), while
+    every honest drone's is from the last second."""
     mission, log, s = coordinated_drag
     for d in s["detections"]:
         i = d["drone"] - 1
-        assert mission.ins_base_t[i] < d["start_s"] + d["time_to_first_detection_s"]
+        assert d["time_to_sustained_detection_s"] is not None
+        assert mission.ins_base_t[i] < d["start_s"] + d["time_to_sustained_detection_s"]
     honest = [i for i in range(9) if i not in (1, 3, 5, 7)]
     assert (mission.ins_base_t[honest] >= log.t[-1] - 1.0).all()
 

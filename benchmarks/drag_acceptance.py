@@ -8,7 +8,9 @@ against its targets:
   than 1 s running; each attacked drone's mean error after its first detection within 3x its
   mean snapshot bound;
 - ``honest``: every shipped scenario with its spoofs removed: honest drones flagged (drone-steps)
-  and alarm records; run it with ``PYTHONPATH`` on an older tree for the numbers before.
+  and alarm records; run it with ``PYTHONPATH`` on an older tree for the numbers before;
+- ``honest-world``: the drag-off test alone on the same honest worlds, every step (no Raft, no
+  detector: seconds): drones found dragged, steps the swarm is pulled, the largest statistics.
 
     PYTHONPATH=src python benchmarks/drag_acceptance.py crash --seeds 1-10 --jobs 2
 """
@@ -21,8 +23,10 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from swarmraft.experiments.mission import error_series, load_scenario, summarize
+from swarmraft.protocol.drift import drift_test
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.scenario import shipped_scenarios
+from swarmraft.sim.sensing import ScenarioWorld
 
 
 def _seeds(text: str) -> list[int]:
@@ -67,17 +71,39 @@ def honest(name: str, seed: int) -> str:
     return f"{name} seed {seed} (no spoof): honest drone-steps flagged {flagged}, alarm records {alarms}"
 
 
+def honest_world(name: str, seed: int) -> str:
+    """The drag-off test on every step of a shipped scenario's honest world (no spoof)."""
+    sc = load_scenario(name, seed=seed, spoof=[])
+    w = ScenarioWorld.build(sc)
+    m, n = w.protocol.drift, sc.drones
+    worst = swarm = 0.0
+    found = pulled = 0
+    none = np.full((m.windows, 3), np.nan)
+    for k in range(sc.steps + 1):
+        inn = np.array([w.innovations(k, i) if w.has_fix[k, i] else none for i in range(n)])
+        v = drift_test(inn, np.ones(n, bool), m)
+        worst, swarm = max(worst, float(v.stat.max())), max(swarm, v.swarm)
+        found += int(v.dragged.sum())
+        pulled += v.pulled
+    return (
+        f"{name} seed {seed} (no spoof, test alone): drone-steps found dragged {found}, steps pulled "
+        f"{pulled}; largest drone statistic {worst:.1f}, swarm {swarm:.1f} (thresholds "
+        f"{m.threshold(m.false_alarm):.1f}, suspect {m.threshold(m.suspect):.1f})"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("part", choices=["drag", "crash", "honest"])
+    ap.add_argument("part", choices=["drag", "crash", "honest", "honest-world"])
     ap.add_argument(
         "--seeds", default=None, help="a seed, or a range 1-10 (default: drag 1, crash 1-10, honest 1-3)"
     )
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args()
-    seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10", "honest": "1-3"}[args.part])
-    if args.part == "honest":
-        jobs = [(honest, name, s) for name in shipped_scenarios() for s in seeds]
+    seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10"}.get(args.part, "1-3"))
+    if args.part in ("honest", "honest-world"):
+        fn = honest if args.part == "honest" else honest_world
+        jobs = [(fn, name, s) for name in shipped_scenarios() for s in seeds]
     else:
         name = "coordinated-drag" if args.part == "drag" else "leader-crash-under-attack"
         jobs = [(attacked, name, s) for s in seeds]

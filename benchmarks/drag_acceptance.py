@@ -76,6 +76,8 @@ def honest_world(name: str, seed: int) -> str:
     sc = load_scenario(name, seed=seed, spoof=[])
     w = ScenarioWorld.build(sc)
     m, n = w.protocol.drift, sc.drones
+    if m is None:
+        return f"{name} seed {seed}: the drag-off test is off (innovation_gate = 0)"
     worst = swarm = 0.0
     found = pulled = 0
     none = np.full((m.windows, 3), np.nan)

@@ -104,7 +104,8 @@ class ScenarioWorld:
             float(np.hypot(gm * sc.gnss.sigma_v, drift_axis)),
         )
         drift_model = None
-        if sc.protocol.drift_windows:
+        # the drag-off test is a temporal test like the gate: off with it (the paper's cases)
+        if sc.protocol.drift_windows and sc.protocol.innovation_gate:
             a, g = 0.5 * grade.accel_bias * window**2, grade.gyro_bias * G * window**3 / 6
             drift_model = DriftModel(
                 window,

@@ -118,13 +118,19 @@ def test_a_verdict_against_the_last_record_and_the_ins_falls_back_to_the_ins_tra
     present = np.ones(4, bool)
     before = np.zeros(4, bool)
     anew = np.array([False, False, True, False])  # drone 3 flagged anew
+    verdict = np.full((4, 3), -1.0)
     # the INS finds nothing wrong with it: the record falls back to every drone's INS track
-    fb = ins_fallback(reports, present, anew, before, _verdict([False] * 4))
+    fb = ins_fallback(reports, present, anew, verdict, before, _verdict([False] * 4))
     assert fb is not None and np.array_equal(fb[:, 0], np.arange(4.0))
+    # a drone the last record flagged keeps the verdict's position (its track is stale)
+    cleared = np.array([True, False, False, False])
+    fb = ins_fallback(reports, present, anew, verdict, cleared, _verdict([False] * 4))
+    assert fb is not None and np.array_equal(fb[:, 0], [-1.0, 1.0, 2.0, 3.0])
     # the INS finds it suspect too (a fresh spoof): the verdict stands
-    assert ins_fallback(reports, present, anew, before, _verdict([False, False, True, False])) is None
+    fresh = _verdict([False, False, True, False])
+    assert ins_fallback(reports, present, anew, verdict, before, fresh) is None
     # nothing changed since the last record: the verdict stands
-    assert ins_fallback(reports, present, anew, anew, _verdict([False] * 4)) is None
+    assert ins_fallback(reports, present, anew, verdict, anew, _verdict([False] * 4)) is None
 
 
 @pytest.fixture(scope="module")

@@ -359,15 +359,19 @@ def ins_fallback(
     reports: dict[int, Report],
     present: np.ndarray,
     faulty: np.ndarray,
+    positions: np.ndarray,
     before: np.ndarray,
     drift: DriftVerdict,
 ) -> np.ndarray | None:
     """Issue 11 item 5: a verdict whose trusted set disagrees both with the previous committed
     one (``before``) and with the INS tracks (a drone it flags anew that the drag-off test
-    neither finds dragged nor suspect, or one it trusts anew that the test does) is not committed as it
-    stands: the record is an alarm whose positions (n, 3) are each drone's INS track, its dead
-    reckoning from its last trusted alignment (`drift.realigns`), which no spoof moves. None
-    when the verdict stands (or a drone that would need it sent no INS track)."""
+    neither finds dragged nor suspect, or one it trusts anew that the test does) is not
+    committed as it stands: the record is an alarm whose positions (n, 3) are, for each drone
+    the previous record trusted, its INS track (its dead reckoning from its last alignment,
+    `drift.realigns`, which no spoof moves), and for a drone it flagged the verdict's
+    ``positions`` (its track has not been aligned since it was flagged: 45 s of drone-grade
+    INS put one 47 m off in the demo mission). None when the verdict stands (or a drone that
+    would need it sent no INS track)."""
     changed = present & (faulty != before)
     against = changed & (faulty != (drift.suspect | drift.dragged))
     if not against.any():
@@ -376,9 +380,10 @@ def ins_fallback(
     for i, r in reports.items():
         if r.ins is not None:
             ins[i] = r.ins
-    if not np.isfinite(ins[present]).all():
+    tracked = present & ~before
+    if not np.isfinite(ins[tracked]).all():
         return None
-    return ins
+    return np.where(tracked[:, None], ins, positions)
 
 
 def compute_record(
@@ -485,7 +490,7 @@ def compute_record(
             if st[0] != "ok" and status == "ok":
                 status = str(st[0])
     if drift is not None and last is not None:
-        fallback = ins_fallback(reports, present, faulty, last.faulty, drift)
+        fallback = ins_fallback(reports, present, faulty, positions, last.faulty, drift)
         if fallback is not None:
             positions, faulty, status = fallback, (last.faulty | drift.dragged) & present, "alarm"
             hpl[:], vpl[:] = np.nan, np.nan

@@ -101,11 +101,13 @@ def main() -> None:
         "--seeds", default=None, help="a seed, or a range 1-10 (default: drag 1, crash 1-10, honest 1-3)"
     )
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--scenarios", default=None, help="honest parts: these shipped scenarios (a,b,...)")
     args = ap.parse_args()
     seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10"}.get(args.part, "1-3"))
     if args.part in ("honest", "honest-world"):
         fn = honest if args.part == "honest" else honest_world
-        jobs = [(fn, name, s) for name in shipped_scenarios() for s in seeds]
+        names = args.scenarios.split(",") if args.scenarios else shipped_scenarios()
+        jobs = [(fn, name, s) for name in names for s in seeds]
     else:
         name = "coordinated-drag" if args.part == "drag" else "leader-crash-under-attack"
         jobs = [(attacked, name, s) for s in seeds]

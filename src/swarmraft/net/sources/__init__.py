@@ -102,7 +102,8 @@ def open_source(swarm: SwarmFile, drone_id: int, world: ScenarioWorld) -> Sensor
             log = read_sensor_log(config.log, sc.drones)
         except SensorLogError as exc:
             raise SourceError(str(exc)) from None
-        return ReplaySource(log, index, sc.dt_s, world.window_steps * sc.dt_s, config.max_age_s)
+        windows = sc.protocol.drift_windows if world.protocol.drift is not None else 0
+        return ReplaySource(log, index, sc.dt_s, world.window_steps * sc.dt_s, config.max_age_s, windows)
     from swarmraft.net.sources.mavlink import MavlinkSource
 
     assert swarm.origin is not None  # the swarm file requires it for a mavlink source

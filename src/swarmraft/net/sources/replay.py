@@ -246,8 +246,9 @@ class ReplaySource:
     reading): its fix (or, without one, its INS estimate), its ranges, and its innovation: the
     log's, or without innovation columns the fix's change over the last ``window_s`` less the
     INS's; with ``windows``, the innovations of the lines held at the end of each of the last
-    ``windows`` windows (the drag-off test's input). Its INS estimate is the log's dead reckoning until the first realignment, then the
-    verified position plus the log's INS increments since."""
+    ``windows`` windows (the drag-off test's input). Its INS estimate is the log's dead
+    reckoning until the first realignment, then the verified position plus the log's INS
+    increments since."""
 
     def __init__(
         self,

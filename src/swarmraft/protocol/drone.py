@@ -479,7 +479,9 @@ def compute_record(
             # would have (for `paper`, whose honest positions are the reports, only the
             # newly flagged drones)
             again = faulty & ~det_faulty & present
-            if c.detector != "paper" and again.any():
+            # (a drone the drag-off test left out of the detector changes nothing the detector
+            # saw: the others keep its positions and protection levels)
+            if c.detector != "paper" and (again & ~dragged).any():
                 again = present
             positions[again] = est[again]
             found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)

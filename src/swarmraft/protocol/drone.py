@@ -386,6 +386,19 @@ def ins_fallback(
     return np.where(tracked[:, None], ins, positions)
 
 
+def _detect(reported: np.ndarray, ranges: np.ndarray, prior: np.ndarray, idx: np.ndarray, c: ProtocolConfig):  # noqa: ANN202
+    """The configured detector's verdict on the drones ``idx``."""
+    sub = SnapshotBatch(
+        reported[idx][None],
+        ranges[np.ix_(idx, idx)][None],
+        c.gnss_sigma,
+        c.range_sigma,
+        prior[idx][None],
+        c.prior_sigma,
+    )
+    return verify_batch(sub, c.detector, **c.detector_params)
+
+
 def compute_record(
     step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
 ) -> StepRecord:
@@ -421,17 +434,16 @@ def compute_record(
         dragged = present & drift.dragged
         if (present & ~dragged).sum() < 4:  # too few left for a snapshot verdict
             dragged[:] = False
-    idx = np.flatnonzero(present & ~dragged)
-
-    sub = SnapshotBatch(
-        reported[idx][None],
-        ranges[np.ix_(idx, idx)][None],
-        c.gnss_sigma,
-        c.range_sigma,
-        prior[idx][None],
-        c.prior_sigma,
-    )
-    v = verify_batch(sub, c.detector, **c.detector_params)
+    # The detector sees every present drone; only if it trusts a drone the drag-off test
+    # found is it run again without those (the usual case, a drone both flag, keeps the
+    # detector's verdict and protection levels)
+    idx = np.flatnonzero(present)
+    v = _detect(reported, ranges, prior, idx, c)
+    if dragged.any() and not v.faulty[0][dragged[idx]].all():
+        idx = np.flatnonzero(present & ~dragged)
+        v = _detect(reported, ranges, prior, idx, c)
+    else:
+        dragged[:] = False
     positions = np.full((n, 3), np.nan)
     faulty = np.zeros(n, dtype=bool)
     positions[idx] = v.positions[0]

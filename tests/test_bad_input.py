@@ -157,7 +157,7 @@ def test_scenario_field_is_named(cwd, extra, needle):
 
 def test_unknown_scenario_name_lists_the_shipped_ones(cwd):
     line = fails_cleanly(["mission", "--scenario", "nope", "--out", "o"], "--scenario: no file nope", cwd)
-    assert "shipped: demo, drag-off" in line
+    assert "shipped: coordinated-drag, demo, drag-off" in line
 
 
 def test_sweep_config_with_inf(cwd):

@@ -126,6 +126,12 @@ def print_mission_summary(summary: dict) -> None:
         f"honest drones flagged in {s['honest_false_positive_rate']:.2%} of their steps",
         2,
     )
+    hx = s["honest_worse_than_gnss"]
+    print_wrapped(
+        f"[{'red' if hx['longest_s'] > 1 else 'green'}]honest drones worse than raw GNSS[/] in "
+        f"{hx['steps']} committed steps (longest run {hx['longest_s']:g} s; target: at most 1 s)",
+        2,
+    )
     wrong = s["wrong_partition_steps"]
     colour = "red" if wrong else "green"
     print_wrapped(
@@ -165,7 +171,9 @@ def print_mission_summary(summary: dict) -> None:
         )
         print_wrapped(
             f"error from the spoof's start: mean {_m(d['mean_error_m'])}, worst "
-            f"{_m(d['worst_error_m'])}; snapshot bound {_m(d['mean_snapshot_bound_m'])}",
+            f"{_m(d['worst_error_m'])}; snapshot bound {_m(d['mean_snapshot_bound_m'])}; after "
+            f"the first detection: mean {_m(d['mean_error_after_detection_m'])} against a bound of "
+            f"{_m(d['mean_snapshot_bound_after_detection_m'])}",
             4,
         )
     for a in s["after_faults"]:

@@ -209,6 +209,7 @@ def _spoof_detection(log: MissionLog, errors: dict[str, np.ndarray], k_sp: int, 
     err, bound = errors["swarmraft"][steps, i], errors["snapshot_bound"][steps, i]
     ok = np.isfinite(err) & np.isfinite(bound) & (bound > 0)
     ratio = err[ok] / bound[ok]
+    since = slice(0, 0) if first is None else slice(first - k0, None)  # from the first detection
 
     def after(k: int | None) -> float | None:
         return None if k is None else round(float(log.t[k] - sp.start_s), 3)
@@ -231,6 +232,8 @@ def _spoof_detection(log: MissionLog, errors: dict[str, np.ndarray], k_sp: int, 
         "mean_error_m": _mean(errors["swarmraft"][steps, i]),
         "mean_snapshot_bound_m": _mean(errors["snapshot_bound"][steps, i]),
         "p95_error_to_snapshot_bound": round(float(np.percentile(ratio, 95)), 3) if ratio.size else None,
+        "mean_error_after_detection_m": _mean(err[since]),
+        "mean_snapshot_bound_after_detection_m": _mean(bound[since]),
     }
 
 
@@ -281,6 +284,24 @@ def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndar
             }
         )
     return out
+
+
+def honest_excess(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The steps in which SwarmRaft leaves the honest drones worse off than raw GNSS: their
+    mean committed error above their mean raw GNSS error (drones never spoofed, alive and in
+    the swarm; steps with a record). Issue 11's target: never for more than 1 s running."""
+    honest = ~log.spoofed.any(axis=0)
+    up = (log.alive & log.in_swarm())[:, honest] & log.committed[:, None]
+    sw = np.where(up, errors["swarmraft"][:, honest], np.nan)
+    gn = np.where(up, errors["gnss"][:, honest], np.nan)
+    have = np.isfinite(sw).any(axis=1) & np.isfinite(gn).any(axis=1)
+    worse = np.zeros(len(log.t), bool)
+    worse[have] = np.nanmean(sw[have], axis=1) > np.nanmean(gn[have], axis=1)
+    return {
+        "steps": int(worse.sum()),
+        "longest_s": round(_runs(worse) * log.scenario.dt_s, 3),
+        "time_ranges_s": time_ranges(log.t, worse),
+    }
 
 
 def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -347,6 +368,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "honest_error_swarmraft_m": _mean(errors["swarmraft"][:, honest]),
         "honest_snapshot_bound_m": _mean(errors["snapshot_bound"][:, honest]),
         "honest_false_positive_rate": round(fp, 5),
+        "honest_worse_than_gnss": honest_excess(log, errors),
         "wrong_partition_step_count": len(wrong_steps),
         "wrong_partition_time_ranges_s": time_ranges(log.t, wrong),
         "wrong_partition_steps": wrong_steps,

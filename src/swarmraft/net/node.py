@@ -53,6 +53,7 @@ from swarmraft.net.status import ReplyLimit, encode_reply
 from swarmraft.net.swarmfile import SwarmFile, drone_file, load_swarm
 from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
+from swarmraft.protocol.drift import realigns
 from swarmraft.raft import (
     Entry,
     EntryKind,
@@ -682,7 +683,7 @@ class DroneHost:
         if r is None:
             self.counters["no_reading"] += 1
             return None
-        return self.drone.make_report(k, r.position, r.kind, r.ranges, r.innovation)
+        return self.drone.make_report(k, r.position, r.kind, r.ranges, r.innovation, r.drift, r.ins)
 
     def _deliver_report(self, report: Report) -> None:
         lead = self.node.lead
@@ -968,7 +969,7 @@ class DroneHost:
         self._write_step(self._record_row(rec, entry.data, now, index=entry.index))
         i = self.index
         k_now = min(int((now - self.swarm.start_unix_s) / self.sc.dt_s), self.sc.steps)
-        if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - REALIGN_STEPS:
+        if rec.step >= k_now - REALIGN_STEPS and realigns(rec, i, self.drone.config.drift):
             self.source.realign(rec.step, rec.positions[i])
 
 

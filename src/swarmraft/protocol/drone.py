@@ -26,13 +26,12 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch, get_detector, verify_batch
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
+from swarmraft.protocol.drift import DriftModel, DriftVerdict, record_drift
 from swarmraft.protocol.memo import BoundedMemo, record_digest
-from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
+from swarmraft.protocol.records import UNSETTLED, Report, StepRecord, canonical_params, reports_digest
 from swarmraft.protocol.signing import Keyring
 
 MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
-#: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
-UNSETTLED = frozenset({"alarm", "unidentifiable"})
 #: how far back the leader looks for a record to carry on (steps)
 PRIOR_STEPS = 3
 
@@ -43,7 +42,8 @@ class ProtocolConfig:
     innovation (squared, 3 dof) exceeds it (None: off); ``innovation_sigma``: the 1-sigma
     (horizontal, vertical) per axis of an honest drone's innovation (GNSS change plus INS
     drift over the window). A drone flagged in the last record stays flagged while its report
-    disagrees (beyond the same gate) with where the trusted drones put it."""
+    disagrees (beyond the same gate) with where the trusted drones put it. ``drift``: the
+    drag-off test over the reports' window innovations (`swarmraft.protocol.drift`; None: off)."""
 
     n: int
     detector: str = "paper"
@@ -53,6 +53,7 @@ class ProtocolConfig:
     innovation_gate: float | None = 25.9  # chi-square 3 dof at 1e-5
     innovation_sigma: tuple[float, float] = (0.5, 0.9)
     prior_sigma: float = 3.0  # m: the last record's position, one step (up to ~1 m of motion) old
+    drift: DriftModel | None = None
 
 
 #: records a drone keeps (the newest): the protocol reads only the last one (the next step's
@@ -177,11 +178,26 @@ class SwarmDrone:
         return StepRecord.decode(data) if self.record_memo is None else self.record_memo.decode(data)
 
     def make_report(
-        self, step: int, position: np.ndarray, source: str, ranges: np.ndarray, innovation: np.ndarray | None
+        self,
+        step: int,
+        position: np.ndarray,
+        source: str,
+        ranges: np.ndarray,
+        innovation: np.ndarray | None,
+        drift: np.ndarray | None = None,
+        ins: np.ndarray | None = None,
     ) -> Report:
+        """The signed report; ``drift`` (M, 3) and ``ins`` (3,) as `Report` describes them."""
         return self.keys.sign(
             Report(
-                step, self.index, np.asarray(position, float), source, np.asarray(ranges, float), innovation
+                step,
+                self.index,
+                np.asarray(position, float),
+                source,
+                np.asarray(ranges, float),
+                innovation,
+                drift=None if drift is None else np.asarray(drift, float),
+                ins=None if ins is None else np.asarray(ins, float),
             )
         )
 
@@ -345,6 +361,50 @@ class Prior(NamedTuple):
     faulty: np.ndarray
 
 
+def ins_fallback(
+    reports: dict[int, Report],
+    present: np.ndarray,
+    faulty: np.ndarray,
+    positions: np.ndarray,
+    before: np.ndarray,
+    drift: DriftVerdict,
+) -> np.ndarray | None:
+    """Issue 11 item 5: a verdict whose trusted set disagrees both with the previous committed
+    one (``before``) and with the INS tracks (a drone it flags anew that the drag-off test
+    neither finds dragged nor suspect, or one it trusts anew that the test does) is not
+    committed as it stands: the record is an alarm whose positions (n, 3) are, for each drone
+    the previous record trusted, its INS track (its dead reckoning from its last alignment,
+    `drift.realigns`, which no spoof moves), and for a drone it flagged the verdict's
+    ``positions`` (its track has not been aligned since it was flagged: 45 s of drone-grade
+    INS put one 47 m off in the demo mission). None when the verdict stands (or a drone that
+    would need it sent no INS track)."""
+    changed = present & (faulty != before)
+    against = changed & (faulty != (drift.suspect | drift.dragged))
+    if not against.any():
+        return None
+    ins = np.full((len(present), 3), np.nan)
+    for i, r in reports.items():
+        if r.ins is not None:
+            ins[i] = r.ins
+    tracked = present & ~before
+    if not np.isfinite(ins[tracked]).all():
+        return None
+    return np.where(tracked[:, None], ins, positions)
+
+
+def _detect(reported: np.ndarray, ranges: np.ndarray, prior: np.ndarray, idx: np.ndarray, c: ProtocolConfig):  # noqa: ANN202
+    """The configured detector's verdict on the drones ``idx``."""
+    sub = SnapshotBatch(
+        reported[idx][None],
+        ranges[np.ix_(idx, idx)][None],
+        c.gnss_sigma,
+        c.range_sigma,
+        prior[idx][None],
+        c.prior_sigma,
+    )
+    return verify_batch(sub, c.detector, **c.detector_params)
+
+
 def compute_record(
     step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
 ) -> StepRecord:
@@ -360,18 +420,36 @@ def compute_record(
         reported[i] = r.position
         ranges[i] = r.ranges
     np.fill_diagonal(ranges, 0.0)
-    idx = np.flatnonzero(present)
     prior = last.positions if last is not None else np.full((n, 3), np.nan)
-
-    sub = SnapshotBatch(
-        reported[idx][None],
-        ranges[np.ix_(idx, idx)][None],
-        c.gnss_sigma,
-        c.range_sigma,
-        prior[idx][None],
-        c.prior_sigma,
-    )
-    v = verify_batch(sub, c.detector, **c.detector_params)
+    # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
+    # the window (a slow drag-off, invisible to one snapshot).
+    gate = np.zeros(n, dtype=bool)
+    sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
+    if c.innovation_gate is not None:
+        for i, r in reports.items():
+            if r.innovation is not None and np.isfinite(r.innovation).all():
+                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+    # Drag-off over time (`protocol.drift`): each drone's window innovations, and their mean
+    # over the drones not already found (a common slow drag of several drones). A drone found
+    # dragged is left out of the snapshot detector, as a drone without a fix (it is placed
+    # from the ranges below), so the detector decides among the others.
+    drift = None
+    dragged = np.zeros(n, dtype=bool)
+    if c.drift is not None:
+        drift = record_drift(reports, n, present & ~gate, c.drift)
+        dragged = present & drift.dragged
+        if (present & ~dragged).sum() < 4:  # too few left for a snapshot verdict
+            dragged[:] = False
+    # The detector sees every present drone; only if it trusts a drone the drag-off test
+    # found is it run again without those (the usual case, a drone both flag, keeps the
+    # detector's verdict and protection levels)
+    idx = np.flatnonzero(present)
+    v = _detect(reported, ranges, prior, idx, c)
+    if dragged.any() and not v.faulty[0][dragged[idx]].all():
+        idx = np.flatnonzero(present & ~dragged)
+        v = _detect(reported, ranges, prior, idx, c)
+    else:
+        dragged[:] = False
     positions = np.full((n, 3), np.nan)
     faulty = np.zeros(n, dtype=bool)
     positions[idx] = v.positions[0]
@@ -382,14 +460,7 @@ def compute_record(
     stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
     positions[stuck] = prior[stuck]
     det_faulty = faulty.copy()
-    # Temporal gate: a GNSS fix that moved away from the drone's own INS prediction over
-    # the window (a slow drag-off, invisible to one snapshot).
-    gate = np.zeros(n, dtype=bool)
-    sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
-    if c.innovation_gate is not None:
-        for i, r in reports.items():
-            if r.innovation is not None and np.isfinite(r.innovation).all():
-                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+    gate |= present & (drift.dragged if drift is not None else dragged)
     # Latch: drones flagged in the last record stay suspect until their reports agree with
     # the trusted drones again.
     before = last.faulty if last is not None else np.zeros(n, dtype=bool)
@@ -403,12 +474,17 @@ def compute_record(
             # A drone nobody heard (no report, no range to it: one outside the swarm) is not
             # part of the step: not placed, and its missing geometry makes no record degenerate.
             h = np.flatnonzero(present | np.isfinite(ranges[present]).any(axis=0))
+            # started from the detector's positions (the shape every range fixes): from the
+            # reports alone, with 4 of 9 drones untrusted, Gauss-Newton ended 40 m off
+            # (a drone left out of it starts from the prior: its report is spoofed)
+            x0 = np.where(np.isfinite(positions), positions, np.where(np.isfinite(prior), prior, start))
             est_h, st = trusted_estimate(
                 start[h][None],
                 ranges[np.ix_(h, h)][None],
                 trusted[h][None],
                 cov,
                 c.range_sigma,
+                x0=x0[h][None],
                 prior=prior[h][None],
                 prior_sigma=c.prior_sigma,
             )
@@ -421,7 +497,9 @@ def compute_record(
             # would have (for `paper`, whose honest positions are the reports, only the
             # newly flagged drones)
             again = faulty & ~det_faulty & present
-            if c.detector != "paper" and again.any():
+            # (a drone the drag-off test left out of the detector changes nothing the detector
+            # saw: the others keep its positions and protection levels)
+            if c.detector != "paper" and (again & ~dragged).any():
                 again = present
             positions[again] = est[again]
             found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
@@ -431,6 +509,11 @@ def compute_record(
             vpl[again | found] = np.nan
             if st[0] != "ok" and status == "ok":
                 status = str(st[0])
+    if drift is not None and last is not None:
+        fallback = ins_fallback(reports, present, faulty, positions, last.faulty, drift)
+        if fallback is not None:
+            positions, faulty, status = fallback, (last.faulty | drift.dragged) & present, "alarm"
+            hpl[:], vpl[:] = np.nan, np.nan
     return StepRecord(
         step,
         term,

@@ -14,7 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 _SOURCES = ("gnss", "ins")
-_REPORT_HEAD = struct.Struct("<iiBBH")  # step, drone, source, has innovation, n
+#: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
+UNSETTLED = frozenset({"alarm", "unidentifiable"})
+_REPORT_HEAD = struct.Struct("<iiBBH")  # step, drone, source, parts (bit 0 innovation, 1 drift, 2 ins), n
+_U8 = struct.Struct("<B")
 _RECORD_HEAD = struct.Struct("<iqHiiH")  # step, term, n, leader, prior step, reports
 _LEN16 = struct.Struct("<H")
 _LEN32 = struct.Struct("<I")
@@ -24,8 +27,13 @@ _LEN32 = struct.Struct("<I")
 class Report:
     """Drone ``drone``'s report for ``step``: its position (GNSS fix, or INS estimate when
     GNSS is lost), the source, its ranges to every drone (nan = not measured) and its
-    GNSS-minus-INS innovation (None without a fix). ``signature`` (Ed25519, 64 bytes) covers
-    everything else. Encoded as little-endian binary: a header, then float64 arrays."""
+    GNSS-minus-INS innovation (None without a fix). ``drift`` (M, 3): the innovations of the
+    last M windows, newest first (nan rows: no fix then), the drag-off test's input
+    (`swarmraft.protocol.drift`); ``ins`` (3,): the drone's INS track, its dead reckoning from
+    the last committed position it was allowed to align to (`drift.realigns`). Both None when
+    the host does not give them. ``signature`` (Ed25519, 64 bytes) covers everything else.
+    Encoded as little-endian binary: a header, then float64 arrays (a report without drift
+    and ins encodes as it always did)."""
 
     step: int
     drone: int  # 0-based index
@@ -34,24 +42,42 @@ class Report:
     ranges: np.ndarray  # (n,)
     innovation: np.ndarray | None
     signature: bytes = b""
+    drift: np.ndarray | None = None
+    ins: np.ndarray | None = None
 
     def body(self) -> bytes:
         """The signed bytes."""
-        inn = self.innovation is not None
-        head = _REPORT_HEAD.pack(self.step, self.drone, _SOURCES.index(self.source), inn, len(self.ranges))
+        inn, drift, ins = self.innovation is not None, self.drift is not None, self.ins is not None
+        parts = inn | drift << 1 | ins << 2
+        head = _REPORT_HEAD.pack(self.step, self.drone, _SOURCES.index(self.source), parts, len(self.ranges))
         arrays = [np.asarray(self.position, "<f8"), np.asarray(self.ranges, "<f8")]
         if inn:
             arrays.append(np.asarray(self.innovation, "<f8"))
-        return head + b"".join(a.tobytes() for a in arrays)
+        body = head + b"".join(a.tobytes() for a in arrays)
+        if drift:
+            rows = np.asarray(self.drift, "<f8").reshape(-1, 3)
+            body += _U8.pack(len(rows)) + rows.tobytes()
+        if ins:
+            body += np.asarray(self.ins, "<f8").tobytes()
+        return body
 
     def encode(self) -> bytes:
         return self.body() + self.signature
 
     @classmethod
     def decode(cls, data: bytes) -> Report:
-        step, drone, src, inn, n = _REPORT_HEAD.unpack_from(data)
+        step, drone, src, parts, n = _REPORT_HEAD.unpack_from(data)
+        inn = parts & 1
         size = _REPORT_HEAD.size + 8 * (3 + n + 3 * inn)
         vals = np.frombuffer(data, "<f8", count=3 + n + 3 * inn, offset=_REPORT_HEAD.size)
+        drift = ins = None
+        if parts & 2:
+            (m,) = _U8.unpack_from(data, size)
+            drift = np.frombuffer(data, "<f8", count=3 * m, offset=size + 1).reshape(m, 3).copy()
+            size += 1 + 24 * m
+        if parts & 4:
+            ins = np.frombuffer(data, "<f8", count=3, offset=size).copy()
+            size += 24
         return cls(
             step,
             drone,
@@ -60,6 +86,8 @@ class Report:
             vals[3 : 3 + n].copy(),
             vals[3 + n :].copy() if inn else None,
             bytes(data[size:]),
+            drift,
+            ins,
         )
 
 

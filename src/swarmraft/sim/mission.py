@@ -15,6 +15,7 @@ import numpy as np
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.committee import initial_committee, next_change
+from swarmraft.protocol.drift import realigns
 from swarmraft.protocol.drone import RecordMemo
 from swarmraft.protocol.memo import BoundedMemo
 from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
@@ -285,7 +286,8 @@ class Mission:
                 continue
             pos, source = (fix[i], "gnss") if has_fix[i] else (ins[i], "ins")
             innov = self._innovation(k, i) if has_fix[i] else None
-            report = self.drones[i].make_report(k, pos, source, ranges[i], innov)
+            drift = w.innovations(k, i) if has_fix[i] else None
+            report = self.drones[i].make_report(k, pos, source, ranges[i], innov, drift, ins[i])
             log.reported[k, i] = pos
             self._send_report(node, report)
             if self.auditing:
@@ -335,7 +337,11 @@ class Mission:
                 continue
             source = "gnss" if not self.log.outage[k, i] else "ins"
             innov = self._innovation(k, i) if source == "gnss" else None
-            report = self.drones[i].make_report(k, self.log.reported[k, i], source, self._rows[k][i], innov)
+            drift = self.world.innovations(k, i) if source == "gnss" else None
+            ins = self._ins(k)[i]
+            report = self.drones[i].make_report(
+                k, self.log.reported[k, i], source, self._rows[k][i], innov, drift, ins
+            )
             self._send_report(node, report)
 
     def _receive(self, node: int, data: bytes) -> None:
@@ -509,11 +515,11 @@ class Mission:
             _note_record(self.log, rec, latency)
             if self.live is not None:
                 _note_record(self.live, rec, latency)
-        # The drone takes its verified position: its INS is aligned to it (for a flagged drone
-        # this is the reset to its recovered position). Not when replaying old records after a
-        # restart.
+        # The drone takes its verified position: its INS track is aligned to it while the record
+        # trusts it and the swarm is not being pulled (`protocol.drift.realigns`). Not when
+        # replaying old records after a restart.
         k_now = min(int(now / 1000 / self.sc.dt_s), self.sc.steps)
-        if np.isfinite(rec.positions[i]).all() and rec.step >= k_now - 5:
+        if rec.step >= k_now - 5 and realigns(rec, i, self.pcfg.drift):
             self.ins_base_t[i] = self.traj.t[rec.step]
             self.ins_base_pos[i] = rec.positions[i]
 

@@ -114,6 +114,15 @@ class ProtocolTimeConfig(_Strict):
     deadline_ms: float = Field(60.0, gt=0, description="leader waits for reports this long")
     innovation_window_s: float = Field(5.0, gt=0, description="INS prediction window of the gate")
     innovation_gate: float = Field(25.9, ge=0, description="chi-square 3 dof threshold; 0: off")
+    drift_windows: int = Field(
+        8, ge=0, le=255, description="drag-off test: past innovation windows a report carries; 0: off"
+    )
+    drift_false_alarm: float = Field(
+        1e-6, gt=0, lt=1, description="drag-off test: per-step probability an honest drone is found dragged"
+    )
+    drift_suspect: float = Field(
+        1e-3, gt=0, lt=1, description="drag-off test: the same for suspect (INS track not re-aligned)"
+    )
     committee: int = Field(
         0, ge=0, description="voters (odd, at most 7; the rest are Raft learners); 0: every drone votes"
     )
@@ -135,6 +144,7 @@ class SpoofConfig(_Strict):
     pivots: list[int] = Field(default_factory=list)
     angle_deg: float = 45.0
     tamper_ranges: bool = False
+    same_direction: bool = Field(False, description="drag: every victim dragged in the first one's direction")
     enlarge: float = Field(
         0.0, ge=0, description="distance enlargement, m: every range a victim takes part in reads this long"
     )

@@ -17,10 +17,11 @@ import numpy as np
 from swarmraft.estimation import SnapshotBatch
 from swarmraft.estimation.calibration import calibrate
 from swarmraft.protocol import ProtocolConfig
+from swarmraft.protocol.drift import DriftModel
 from swarmraft.sim.scenario import Scenario
 from swarmraft.world import GaussMarkov, UWBRanging
 from swarmraft.world.attacks import enlarge
-from swarmraft.world.ins import InsDrift, InsGrade, ins_grade, ins_sigma
+from swarmraft.world.ins import G, InsDrift, InsGrade, ins_grade, ins_sigma
 from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
 from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
 
@@ -77,6 +78,7 @@ class ScenarioWorld:
                 s.angle_deg,
                 s.tamper_ranges,
                 s.enlarge,
+                s.same_direction,
             )
             for s in sc.spoof
         ]
@@ -100,6 +102,19 @@ class ScenarioWorld:
             float(np.hypot(gm * sc.gnss.sigma_h, drift_axis)),
             float(np.hypot(gm * sc.gnss.sigma_v, drift_axis)),
         )
+        drift_model = None
+        # the drag-off test is a temporal test like the gate: off with it (the paper's cases)
+        if sc.protocol.drift_windows and sc.protocol.innovation_gate:
+            a, g = 0.5 * grade.accel_bias * window**2, grade.gyro_bias * G * window**3 / 6
+            drift_model = DriftModel(
+                window,
+                sc.protocol.drift_windows,
+                (sc.gnss.sigma_h, sc.gnss.sigma_v),
+                sc.gnss.tau_s,
+                (float(np.hypot(a, g)), float(a)),
+                sc.protocol.drift_false_alarm,
+                sc.protocol.drift_suspect,
+            )
         params = dict(sc.protocol.detector_params)
         calibration: dict[str, float] = {}
         if sc.protocol.detector == "paper" and not {"tau", "epsilon"} & set(params):
@@ -115,6 +130,7 @@ class ScenarioWorld:
             range_sigma=sc.ranging.sigma,
             innovation_gate=sc.protocol.innovation_gate or None,
             innovation_sigma=innovation_sigma,
+            drift=drift_model,
         )
         return cls(
             sc,
@@ -173,10 +189,19 @@ class ScenarioWorld:
         if not (np.isfinite(now).all() and np.isfinite(then).all()):
             return None
         w = self.traj.t[k] - self.traj.t[base]
-        ins_moved = (
-            self.traj.positions[k, i] - self.traj.positions[base, i] + self.drift.error(np.full(1, w))[0]
-        )
+        own = InsDrift(self.drift.accel[i : i + 1], self.drift.gyro[i : i + 1])
+        ins_moved = self.traj.positions[k, i] - self.traj.positions[base, i] + own.error(np.full(1, w))[0]
         return (now - then) - ins_moved
+
+    def innovations(self, k: int, i: int) -> np.ndarray | None:
+        """(M, 3) drone i's innovations over its last M windows (the drag-off test's input,
+        `protocol.drift`), newest first: the window ending at step k, then at k - W, ...; a nan
+        row where it has none. None when the test is off (M = 0)."""
+        m = self.sc.protocol.drift_windows
+        if m == 0:
+            return None
+        rows = [self.innovation(k - j * self.window_steps, i) for j in range(m)]
+        return np.array([np.full(3, np.nan) if r is None else r for r in rows])
 
 
 #: Snapshots the start-up calibration draws: 400, fewer beyond 64 drones so that the drone

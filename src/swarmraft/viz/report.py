@@ -316,6 +316,16 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
         out.append(("warn", f"honest drones flagged in {fp:.2%} of their judged steps"))
     else:
         out.append(("ok", "no honest drone flagged"))
+    hx = s.get("honest_worse_than_gnss")
+    if isinstance(hx, Mapping):
+        verdict = "fail" if hx.get("longest_s", 0) > 1 else "ok"
+        out.append(
+            (
+                verdict,
+                f"honest drones worse than raw GNSS in {hx.get('steps')} steps (longest run "
+                f"{hx.get('longest_s'):g} s; target at most 1 s)",
+            )
+        )
     withheld = {k: v for k, v in ig.get("status_counts", {}).items() if k not in ("ok", "skipped") and v}
     if withheld:
         out.append(("warn", "records not ok: " + ", ".join(f"{k} {v}" for k, v in sorted(withheld.items()))))

@@ -33,6 +33,7 @@ class Spoof:
     angle_deg: float = 45.0
     tamper_ranges: bool = False
     enlarge: float = 0.0
+    same_direction: bool = False  # drag: all victims in the first one's direction (coordinated)
 
     def active(self, t: float) -> bool:
         return t >= self.start and (self.end is None or t < self.end)
@@ -65,6 +66,8 @@ class AttackTimeline:
             if s.kind == "drag":
                 d[:, 2] = 0.0
                 d /= np.linalg.norm(d, axis=1, keepdims=True)
+                if s.same_direction:  # drawn as before, so other draws do not shift
+                    d[:] = d[0]
             dirs.append(d)
         return cls(list(spoofs), list(outages), dirs, [None] * len(spoofs))
 

@@ -36,6 +36,7 @@ class Reading:
     ranges: np.ndarray  # (n,) m: its measured range to each drone, nan where not measured
     innovation: np.ndarray | None  # (3,) m: GNSS-minus-INS over the innovation window, or None
     ins: np.ndarray  # (3,) m: its INS estimate (equal to ``position`` when kind is "ins")
+    drift: np.ndarray | None = None  # (M, 3) m: innovations of its last M windows (`Report.drift`)
 
 
 class SensorSource(Protocol):
@@ -72,7 +73,7 @@ class ScenarioSource:
         ins = w.ins_estimate(k, self.base_t, self.base_pos)
         ranges = w.measured_ranges(k, ins)[i]
         if w.has_fix[k, i]:
-            return Reading(w.fix[k, i], "gnss", ranges, w.innovation(k, i), ins[i])
+            return Reading(w.fix[k, i], "gnss", ranges, w.innovation(k, i), ins[i], w.innovations(k, i))
         return Reading(ins[i], "ins", ranges, None, ins[i])
 
     def realign(self, k: int, position: np.ndarray) -> None:
@@ -101,7 +102,8 @@ def open_source(swarm: SwarmFile, drone_id: int, world: ScenarioWorld) -> Sensor
             log = read_sensor_log(config.log, sc.drones)
         except SensorLogError as exc:
             raise SourceError(str(exc)) from None
-        return ReplaySource(log, index, sc.dt_s, world.window_steps * sc.dt_s, config.max_age_s)
+        windows = sc.protocol.drift_windows if world.protocol.drift is not None else 0
+        return ReplaySource(log, index, sc.dt_s, world.window_steps * sc.dt_s, config.max_age_s, windows)
     from swarmraft.net.sources.mavlink import MavlinkSource
 
     assert swarm.origin is not None  # the swarm file requires it for a mavlink source

@@ -245,15 +245,26 @@ class ReplaySource:
     drone's last line at or before that time, if it is at most ``max_age_s`` old (else no
     reading): its fix (or, without one, its INS estimate), its ranges, and its innovation: the
     log's, or without innovation columns the fix's change over the last ``window_s`` less the
-    INS's. Its INS estimate is the log's dead reckoning until the first realignment, then the
-    verified position plus the log's INS increments since."""
+    INS's; with ``windows``, the innovations of the lines held at the end of each of the last
+    ``windows`` windows (the drag-off test's input). Its INS estimate is the log's dead
+    reckoning until the first realignment, then the verified position plus the log's INS
+    increments since."""
 
-    def __init__(self, log: SensorLog, index: int, dt_s: float, window_s: float, max_age_s: float = 1.0):
+    def __init__(
+        self,
+        log: SensorLog,
+        index: int,
+        dt_s: float,
+        window_s: float,
+        max_age_s: float = 1.0,
+        windows: int = 0,
+    ):
         mine = log.drone == index
         self.t_s, self.gnss, self.ins = log.t_s[mine], log.gnss[mine], log.ins[mine]
         self.innov = None if log.innovation is None else log.innovation[mine]
         self.ranges = log.ranges[mine]
         self.dt_s, self.window_s, self.max_age_s = dt_s, window_s, max_age_s
+        self.windows = windows  # past windows a report carries (`Report.drift`); 0: none
         self._base: tuple[np.ndarray, np.ndarray] | None = None  # (INS then, verified position)
 
     def _row(self, t: float) -> int:
@@ -275,7 +286,20 @@ class ReplaySource:
         fix = self.gnss[j]
         if not np.isfinite(fix).all():
             return Reading(ins, "ins", self.ranges[j].copy(), None, ins)
-        return Reading(fix.copy(), "gnss", self.ranges[j].copy(), self._innovation(j, t), ins)
+        return Reading(fix.copy(), "gnss", self.ranges[j].copy(), self._innovation(j, t), ins, self._drift(t))
+
+    def _drift(self, t: float) -> np.ndarray | None:
+        """The innovations of the last ``windows`` windows, newest first (nan: none then), as
+        the innovation of the line held at the end of each."""
+        if not self.windows:
+            return None
+        rows = []
+        for m in range(self.windows):
+            tm = t - m * self.window_s
+            j = self._row(tm)
+            v = None if j < 0 or not np.isfinite(self.gnss[j]).all() else self._innovation(j, tm)
+            rows.append(np.full(3, np.nan) if v is None else v)
+        return np.array(rows)
 
     def _innovation(self, j: int, t: float) -> np.ndarray | None:
         if self.innov is not None:

@@ -120,81 +120,61 @@ def robust_estimate(
     q = np.where(conv[..., None], q, np.inf)
     pick = np.argmin(q, axis=0)  # (T, n)
     mixed = np.flatnonzero(((pick != best[:, None]) & ~trusted).any(axis=1))
-    if mixed.size:
-        x_mix = x[mixed].copy()
-        untrusted = ~trusted[mixed]
-        x_mix[untrusted] = X[pick[mixed], mixed[:, None], np.arange(n)[None, :]][untrusted]
-        Xm, cm, okm = weighted_gauss_newton(
-            x_mix,
-            reported[mixed],
-            ranges[mixed],
-            gnss_w[mixed],
-            range_w[mixed],
+
+    def solve(x0: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One more start for some trials: the solver from x0 (rows, n, 3)."""
+        return weighted_gauss_newton(
+            x0,
+            reported[rows],
+            ranges[rows],
+            gnss_w[rows],
+            range_w[rows],
             noise.gnss_cov,
             noise.range_sigma,
             iters,
-            prior=None if pr is None else pr[mixed],
+            prior=None if pr is None else pr[rows],
             prior_sigma=prior_sigma,
             full=True,
         )
-        better = okm & (cm < c[mixed])
-        rows = mixed[better]
-        x[rows], c[rows], ok[rows] = Xm[better], cm[better], True
-        extra = np.full((1, T, n, 3), np.nan)
-        extra[0, mixed] = Xm
-        X = np.concatenate([X, extra])
-        conv = np.concatenate([conv, np.isin(t, mixed[okm])[None]])
-        cost = np.concatenate([cost, np.where(np.isin(t, mixed), 0.0, np.inf)[None]])
-        cost[-1, mixed] = cm
+
+    def appended(rows: np.ndarray, Xr: np.ndarray, cr: np.ndarray, okr: np.ndarray) -> None:
+        """Those trials' minima as one more row of every start's X, cost, conv and q."""
+        nonlocal X, conv, cost, q
+        X = np.concatenate([X, np.full((1, T, n, 3), np.nan)])
+        X[-1, rows] = Xr
+        conv = np.concatenate([conv, np.isin(t, rows[okr])[None]])
+        cost = np.concatenate([cost, np.full((1, T), np.inf)])
+        cost[-1, rows] = cr
         q = np.concatenate([q, np.full((1, T, n), np.inf)])
-        q[-1, mixed] = np.where(
-            okm[:, None],
+        q[-1, rows] = np.where(
+            okr[:, None],
             _own_cost(
-                _placed(anchors[mixed], Xm, trusted[mixed]),
-                ranges[mixed],
-                trusted[mixed],
+                _placed(anchors[rows], Xr, trusted[rows]),
+                ranges[rows],
+                trusted[rows],
                 noise.range_sigma,
-                None if pr is None else pr[mixed],
+                None if pr is None else pr[rows],
                 prior_sigma,
             ),
             np.inf,
         )
+
+    if mixed.size:
+        x_mix = x[mixed].copy()
+        untrusted = ~trusted[mixed]
+        x_mix[untrusted] = X[pick[mixed], mixed[:, None], np.arange(n)[None, :]][untrusted]
+        Xm, cm, okm = solve(x_mix, mixed)
+        better = okm & (cm < c[mixed])
+        rows = mixed[better]
+        x[rows], c[rows], ok[rows] = Xm[better], cm[better], True
+        appended(mixed, Xm, cm, okm)
         if rows.size:
             # the mixed answer's own reflection, every untrusted drone across its anchors'
             # plane at once: when no start reached either side cleanly, the other side of the
             # plane is among no start's minima, and two equally good minima apart would pass
             # for one
-            Xf, cf, okf = weighted_gauss_newton(
-                mirrored(x[rows], ranges[rows], trusted[rows]),
-                reported[rows],
-                ranges[rows],
-                gnss_w[rows],
-                range_w[rows],
-                noise.gnss_cov,
-                noise.range_sigma,
-                iters,
-                prior=None if pr is None else pr[rows],
-                prior_sigma=prior_sigma,
-                full=True,
-            )
-            X = np.concatenate([X, np.full((1, T, n, 3), np.nan)])
-            X[-1, rows] = Xf
-            conv = np.concatenate([conv, np.isin(t, rows[okf])[None]])
-            cost = np.concatenate([cost, np.full((1, T), np.inf)])
-            cost[-1, rows] = cf
-            q = np.concatenate([q, np.full((1, T, n), np.inf)])
-            q[-1, rows] = np.where(
-                okf[:, None],
-                _own_cost(
-                    _placed(anchors[rows], Xf, trusted[rows]),
-                    ranges[rows],
-                    trusted[rows],
-                    noise.range_sigma,
-                    None if pr is None else pr[rows],
-                    prior_sigma,
-                ),
-                np.inf,
-            )
+            Xf, cf, okf = solve(mirrored(x[rows], ranges[rows], trusted[rows]), rows)
+            appended(rows, Xf, cf, okf)
             won = okf & (cf < c[rows])
             x[rows[won]], c[rows[won]], ok[rows[won]] = Xf[won], cf[won], True
     far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))

@@ -25,9 +25,9 @@ same leader term makes this drone treat the leader as faulty (`take_suspicion`),
 record does. The windows restart with every new term.
 
 Signatures are verified once: a report whose signature verified when it arrived directly
-(`note_report`) is not verified again when a record carries it; the memo is keyed by the
-digest of the report's whole bytes (signed body and signature), so a carried report that
-differs in any byte from the one received is verified in full.
+(`note_report`) is not verified again when a record carries it, by the drone's `Keyring`,
+which remembers each check by (drone, signature, digest of the signed bytes); a carried
+report that differs in any byte from the one received is verified in full.
 
 Pure logic: the host feeds reports (`note_report`), closes steps at their deadline
 (`close_step`) and starts the forced election.
@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, memo_compute
-from swarmraft.protocol.memo import BoundedMemo, record_digest
+from swarmraft.protocol.memo import record_digest
 from swarmraft.protocol.records import Report, StepRecord, canonical_params, reports_digest
 from swarmraft.raft import Entry, EntryKind
 
@@ -63,11 +63,6 @@ KEEP_STEPS = 64
 
 def _digest(data: bytes) -> bytes:
     return hashlib.sha256(data).digest()
-
-
-def report_key(report: Report) -> bytes:
-    """The key of a report's verified signature: the digest of its signed body and signature."""
-    return _digest(report.encode())
 
 
 def _close(a: np.ndarray | None, b: np.ndarray | None, tol: float) -> bool:
@@ -101,8 +96,6 @@ class Auditor:
             raise ValueError(f"censor: need 0 <= k < m, got k={self.k}, m={self.m}")
         self.tolerance = POSITION_TOL_M
         self._passed: OrderedDict[bytes, None] = OrderedDict()
-        # `report_key` of the reports received directly whose signature verified
-        self._verified = BoundedMemo(KEEP_STEPS * max(drone.config.n, 1))
         self.seen: dict[int, list[StepRecord]] = {}  # step -> records held for it
         self.refused: list[tuple[int, str]] = []  # (step, reason)
         self.unchecked_priors = 0
@@ -191,7 +184,7 @@ class Auditor:
         for r in rec.reports:
             if r.step != rec.step:
                 return f"drone {r.drone + 1}'s report is for step {r.step}"
-            if len(r.ranges) != c.n or not self._signed(r):
+            if len(r.ranges) != c.n or not keys.verify(r):
                 return f"drone {r.drone + 1}'s report signature"
         if rec.digest != reports_digest(list(rec.reports)):
             return "report digest"
@@ -214,15 +207,6 @@ class Auditor:
         if not (_close(again.hpl, rec.hpl, self.tolerance) and _close(again.vpl, rec.vpl, self.tolerance)):
             return "protection levels differ from the re-run"
         return None
-
-    def verified_directly(self, report: Report) -> bool:
-        """Whether these very bytes arrived directly (`note_report`) and their signature verified."""
-        return report_key(report) in self._verified
-
-    def _signed(self, report: Report) -> bool:
-        """Whether the report's signature verifies: known if it was verified at the fan-out,
-        else verified now."""
-        return self.verified_directly(report) or self.drone.keys.verify(report)
 
     def _prior(self, rec: StepRecord) -> str | None:
         """The prior is a settled record this drone holds, within PRIOR_STEPS."""
@@ -262,7 +246,6 @@ class Auditor:
             ok = self.drone.keys.verify(report)
         if not ok:
             return False
-        self._verified[report_key(report)] = True
         self.timely.setdefault(report.step, set()).add(report.drone)
         return True
 

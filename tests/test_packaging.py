@@ -13,6 +13,7 @@ from swarmraft.sim.scenario import find_scenario, shipped_scenarios
 
 ROOT = Path(__file__).parent.parent
 SHIPPED = [
+    "coordinated-drag",
     "demo",
     "drag-off",
     "jammed-drone",

@@ -120,7 +120,7 @@ def test_live_view_in_a_browser_shows_the_swarm_and_its_recording_holds_it(tmp_p
     finally:
         proc.send_signal(signal.SIGINT)  # the viewer stays up after the mission until Ctrl-C
         try:
-            rc = proc.wait(90)  # the viewer and the recording close after Ctrl-C: seconds, more on a loaded machine
+            rc = proc.wait(90)  # the viewer and recording close: seconds, more under load
         except subprocess.TimeoutExpired:
             proc.kill()
             raise

@@ -175,6 +175,13 @@ def test_a_forged_report_is_refused_though_its_genuine_twin_arrived_directly() -
     assert got is None and reason == "drone 5's report signature"
 
 
+def test_a_record_whose_digest_is_not_its_reports_is_refused() -> None:
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    got, reason = v.audit.check(resealed(replace(rec, digest="0" * len(rec.digest)), keys), 1)
+    assert got is None and reason == "report digest"
+
+
 def test_tolerance_is_tight() -> None:
     assert POSITION_TOL_M <= 1e-3  # a record is trusted to a millimetre at the very most
 

@@ -289,7 +289,7 @@ def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndar
 def honest_excess(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
     """The steps in which SwarmRaft leaves the honest drones worse off than raw GNSS: their
     mean committed error above their mean raw GNSS error (drones never spoofed, alive and in
-    the swarm; steps with a record). Issue 11's target: never for more than 1 s running."""
+    the swarm; steps with a record). The target: never for more than 1 s running."""
     honest = ~log.spoofed.any(axis=0)
     up = (log.alive & log.in_swarm())[:, honest] & log.committed[:, None]
     sw = np.where(up, errors["swarmraft"][:, honest], np.nan)

@@ -369,7 +369,7 @@ def ins_fallback(
     before: np.ndarray,
     drift: DriftVerdict,
 ) -> np.ndarray | None:
-    """Issue 11 item 5: a verdict whose trusted set disagrees both with the previous committed
+    """Never worse than raw GNSS: a verdict whose trusted set disagrees both with the previous committed
     one (``before``) and with the INS tracks (a drone it flags anew that the drag-off test
     neither finds dragged nor suspect, or one it trusts anew that the test does) is not
     committed as it stands: the record is an alarm whose positions (n, 3) are, for each drone

@@ -158,7 +158,7 @@ MUTANTS: tuple[Mutant, ...] = (
         "            if not self.match_term(e.index, e.term):",
         "            if e.index > 0:",
     ),
-    # membership, leader transfer and reads (issue 12 item 5)
+    # membership, leader transfer and reads
     Mutant(
         "learner-in-quorum",
         "a learner's acknowledgement counts towards the commit quorum",

@@ -97,7 +97,7 @@ def test_live_view_in_a_browser_shows_the_swarm_and_its_recording_holds_it(tmp_p
     rrd, shot = tmp_path / "live.rrd", tmp_path / "live.png"
     cmd = [sys.executable, "-m", "swarmraft", "mission", "--scenario", str(tmp_path / "s.toml")]
     cmd += ["--out", str(tmp_path / "out"), "--live", "--port", str(_free_port()), "--record", str(rrd)]
-    env = {**os.environ, "COLUMNS": "200"}
+    env = {**os.environ, "COLUMNS": "200", "PYTHONFAULTHANDLER": "1"}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     seen: list[str] = []
     try:
@@ -122,8 +122,15 @@ def test_live_view_in_a_browser_shows_the_swarm_and_its_recording_holds_it(tmp_p
         try:
             rc = proc.wait(90)  # the viewer and recording close: seconds, more under load
         except subprocess.TimeoutExpired:
+            # say where it hangs: faulthandler prints every thread's stack on SIGABRT
+            proc.send_signal(signal.SIGABRT)
+            time.sleep(2)
             proc.kill()
-            raise
+            proc.wait()
+            while not q.empty():
+                seen.append(q.get())
+            out = "".join(seen)
+            raise AssertionError(f"the mission did not exit within 90 s of Ctrl-C:\n{out}") from None
     assert rc == 0, "".join(seen)
     if target := os.environ.get("SWARMRAFT_SCREENSHOT"):
         Path(target).parent.mkdir(parents=True, exist_ok=True)

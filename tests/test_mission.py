@@ -254,6 +254,9 @@ def test_bad_scenarios_are_one_line_errors(tmp_path):
     f.write_text("colour = 1\n")
     with pytest.raises(ConfigError, match="colour: unknown parameter"):
         load_scenario(f)
+    f.write_text('drones = 9\n[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 1\nsame_direction = true\n')
+    with pytest.raises(ConfigError, match="same_direction: only a drag spoof has a direction to share"):
+        load_scenario(f)
     f.write_text("[network]\nloss = 2\n")
     with pytest.raises(ConfigError, match=r"network\.loss"):
         load_scenario(f)

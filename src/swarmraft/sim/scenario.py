@@ -153,6 +153,8 @@ class SpoofConfig(_Strict):
     def _enlarge(self) -> SpoofConfig:
         if self.kind == "enlarge" and not self.enlarge > 0:
             raise ValueError("enlarge: kind 'enlarge' needs enlarge > 0 (m)")
+        if self.same_direction and self.kind != "drag":
+            raise ValueError(f"same_direction: only a drag spoof has a direction to share, not {self.kind!r}")
         return self
 
 

@@ -6,8 +6,11 @@ port in use, a missing .rrd, a folder that is not a mission's) is one line with 
 from __future__ import annotations
 
 import json
+import signal
 import socket
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -109,6 +112,30 @@ def test_record_dir_writes_the_recording_of_a_mission_folder(recorded):
 
     for t in (1.0, 2.5, 4.5):
         np.testing.assert_allclose(final(live, t), final(after, t), atol=1e-4)
+
+
+def test_ctrl_c_stops_the_viewer_even_where_the_parent_ignored_it(recorded):
+    """A process started with SIGINT ignored (a parent that ignores it passes that on) still
+    stops `swarmraft view` on Ctrl-C: the wait for Ctrl-C installs its own handler. Without it
+    the viewer stays up for good."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cmd = [sys.executable, "-m", "swarmraft", "view", str(recorded / "live.rrd"), "--port", str(port)]
+    ignore = lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)  # noqa: E731
+    out = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True}
+    proc = subprocess.Popen(cmd, preexec_fn=ignore, **out)
+    try:
+        end = time.monotonic() + 120
+        for line in proc.stdout:  # type: ignore[union-attr]
+            if "Ctrl-C to stop" in line or time.monotonic() > end:
+                break
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def test_record_dir_refuses_a_folder_that_is_not_a_missions_and_mixed_uses(tmp_path):

@@ -174,9 +174,7 @@ class LiveSession:
         try:
             if self.linger is None:
                 self.say.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
-                self.server.wait()
-            else:
-                time.sleep(self.linger)
+            self.server.wait(self.linger)
         except KeyboardInterrupt:
             pass
         finally:

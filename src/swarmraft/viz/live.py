@@ -22,7 +22,10 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -370,6 +373,25 @@ def rerun_command() -> list[str]:
     return [sys.executable, "-m", "rerun"]
 
 
+@contextmanager
+def ctrl_c_raises() -> Iterator[None]:
+    """Inside the block Ctrl-C (SIGINT) raises KeyboardInterrupt even where the process
+    started with SIGINT ignored: a shell script's background job, or any parent that ignores
+    it, passes that on, and Python then leaves it ignored. A command that says it waits "until
+    Ctrl-C" must mean it. The handler before is put back after; off the main thread (where no
+    handler can be set) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        if before is not None:  # None: set outside Python, cannot be put back from here
+            signal.signal(signal.SIGINT, before)
+
+
 def _die_with_parent() -> None:
     """In the server's process before it runs: on Linux, SIGTERM it when its parent dies (a
     killed mission leaves no server behind)."""
@@ -442,11 +464,16 @@ class ViewerServer:
     def pid(self) -> int | None:
         return self.proc.pid if self.proc is not None else None
 
-    def wait(self) -> None:
-        """Until the server ends or Ctrl-C (then stop it)."""
+    def wait(self, timeout_s: float | None = None) -> None:
+        """Until the server ends, ``timeout_s`` passes (None: no limit) or Ctrl-C (then stop
+        it; KeyboardInterrupt goes on to the caller)."""
+        end = None if timeout_s is None else time.monotonic() + timeout_s
         try:
-            while self.proc is not None and self.proc.poll() is None:
-                time.sleep(0.2)
+            with ctrl_c_raises():
+                while self.proc is not None and self.proc.poll() is None:
+                    if end is not None and time.monotonic() >= end:
+                        break
+                    time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
         finally:
             self.stop()
 

@@ -155,15 +155,17 @@ def report(rows: list[dict], modes: list[str], drones: list[int]) -> None:
         for n in drones:
             rs = [r for r in rows if r["mode"] == m and r["n"] == n]
             broken = [r["seed"] for r in rs if r["invariant"] != "held"]
+            # a seed whose leader never lied (nothing committed, or no one led) proves nothing
+            unlied = [r["seed"] for r in rs if r["invariant"] == "held" and r.get("replaced_s") is None]
             times = [r["replaced_s"] for r in rs if r.get("replaced_s") is not None]
             worst = max(times) if times else None
             outside = sum(r.get("outside", 0) for r in rs)
             target = 2.0 if m == "censor" else 1.0
-            ok = not broken and worst is not None and worst <= target and outside == 0
+            ok = not broken and not unlied and worst is not None and worst <= target and outside == 0
             print(
                 f"{m:>7} n={n:>2}: {len(rs)} seeds, invariant broken on {broken or 'none'}, "
-                f"replaced after {worst} s at worst (target {target} s), "
-                f"{outside} skipped steps outside the window: {'met' if ok else 'NOT met'}"
+                f"no lie told on {unlied or 'none'}, replaced after {worst} s at worst (target "
+                f"{target} s), {outside} skipped steps outside the window: {'met' if ok else 'NOT met'}"
             )
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from swarmraft.estimation.joint import _free_drones, joint_estimate, weighted_gauss_newton
+from swarmraft.estimation.trust_region import linear_multilateration
 
 COV = np.diag([2.25, 2.25, 9.0])
 
@@ -66,3 +67,22 @@ def test_without_free_drones_reduced_is_lu_bit_for_bit() -> None:
         np.testing.assert_array_equal(
             weighted_gauss_newton(*args, reduced=True), weighted_gauss_newton(*args)
         )
+
+
+def test_fast_multilateration_is_the_pinv_solution() -> None:
+    """Well-spread anchors: Cholesky's answer within rounding of pinv's; 3 anchors (singular
+    normal equations) and coplanar ones: pinv's minimum-norm answer, bit for bit."""
+    rng = np.random.default_rng(2)
+    B, M = 200, 9
+    anchors = rng.uniform(0, 100, (B, M, 3))
+    anchors[:50, :, 2] = 7.0  # coplanar: the normal equations are singular
+    target = rng.uniform(0, 100, (B, 3))
+    dists = np.linalg.norm(anchors - target[:, None], axis=2) + rng.normal(0, 0.1, (B, M))
+    mask = rng.random((B, M)) < 0.8
+    mask[50:60] = False
+    mask[50:60, :3] = True  # 3 anchors
+    exact = linear_multilateration(anchors, dists, mask)
+    fast = linear_multilateration(anchors, dists, mask, fast=True)
+    np.testing.assert_array_equal(fast[:60], exact[:60])
+    np.testing.assert_allclose(fast[60:], exact[60:], rtol=1e-9, atol=1e-9)
+    assert not np.array_equal(fast[60:], exact[60:])  # the Cholesky path was taken

@@ -455,12 +455,17 @@ def weighted_gauss_newton(
 
 
 def initial_positions(
-    reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, prior: np.ndarray | None = None
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    trusted: np.ndarray,
+    prior: np.ndarray | None = None,
+    fast: bool = False,
 ) -> np.ndarray:
     """Start for the joint solve: trusted drones at their reports; the others by closed-form
     multilateration from the trusted ones they have ranges with, or, with fewer than 4 such
     anchors, at their prior if they have one (which picks the right one of the two mirror
-    solutions that 3 anchors leave), else at their report."""
+    solutions that 3 anchors leave), else at their report. ``fast``: see
+    `trust_region.linear_multilateration`."""
     x = np.array(reported, dtype=float, copy=True)
     if prior is not None:
         use = ~trusted & ~np.isnan(prior).any(axis=2)
@@ -474,7 +479,7 @@ def initial_positions(
     mask = trusted[t_idx] & ~np.isnan(dists[t_idx, a_idx]) & (np.arange(n)[None, :] != a_idx[:, None])
     ok = mask.sum(axis=1) >= 4
     if ok.any():
-        est = linear_multilateration(reported[t_idx[ok]], dists[t_idx[ok], a_idx[ok]], mask[ok])
+        est = linear_multilateration(reported[t_idx[ok]], dists[t_idx[ok], a_idx[ok]], mask[ok], fast)
         x[t_idx[ok], a_idx[ok]] = est
     return x
 
@@ -495,13 +500,14 @@ def joint_estimate(
     measured by trusted drones (an untrusted drone's own ranges may be tampered), ranges
     measured by others to the untrusted ones, and priors (T, n, 3; nan = none) where given.
     ``x0``: a start (e.g. the previous solution when the trusted set shrinks by one); by
-    default closed-form multilateration. ``reduced``: see `weighted_gauss_newton`."""
+    default closed-form multilateration. ``reduced``: see `weighted_gauss_newton` (and the
+    start by `initial_positions` with ``fast``)."""
     if prior is not None:
         # a prior only where the position must come from ranges (a trusted drone has its GNSS),
         # so a stale or wrong prior cannot pull the trusted geometry
         prior = np.where(trusted[..., None], np.nan, prior)
     if x0 is None:
-        x0 = initial_positions(reported, ranges, trusted, prior)
+        x0 = initial_positions(reported, ranges, trusted, prior, fast=reduced)
     gnss_w = trusted.astype(float)
     range_w = np.broadcast_to(trusted[:, :, None], ranges.shape).astype(float)
     return weighted_gauss_newton(

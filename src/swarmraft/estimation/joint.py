@@ -119,66 +119,26 @@ def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - 
 
 
 @njit(cache=True)
-def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # pragma: no cover
-    """Gauss-Newton normal equations H, g (in place) of one problem at xt."""
+def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower=False):  # pragma: no cover
+    """Gauss-Newton normal equations H, g (in place) of one problem at xt. With ``lower``, of
+    H only the lower triangle (H[p, q], p >= q; the rest is left as it was), all
+    `_reduced_solve` reads: 21 entries per range instead of 36. Not the same bits as the full
+    matrix's lower triangle (an off-diagonal block takes u_a u_b where the full matrix's
+    transpose has u_b u_a)."""
     n = xt.shape[0]
-    H[:, :] = 0.0
+    if lower:
+        for p in range(3 * n):
+            for q in range(p + 1):
+                H[p, q] = 0.0
+    else:
+        H[:, :] = 0.0
     g[:] = 0.0
     for i in range(n):
         w = gw[i]
         if w > 0:
             for a in range(3):
                 for b in range(3):
-                    H[3 * i + a, 3 * i + b] += w * G[a, b]
-                    g[3 * i + a] += w * G[a, b] * (xt[i, b] - rep[i, b])
-        if prior_w > 0 and np.isfinite(pr[i, 0]):
-            for a in range(3):
-                H[3 * i + a, 3 * i + a] += prior_w
-                g[3 * i + a] += prior_w * (xt[i, a] - pr[i, a])
-    for i in range(n):
-        for j in range(n):
-            d = rng_[i, j]
-            w = rw[i, j]
-            if i == j or w <= 0 or np.isnan(d):
-                continue
-            dist, d0, d1, d2 = _separation(xt, i, j)
-            if dist == 0:
-                continue
-            u = (d0 / dist, d1 / dist, d2 / dist)
-            wr = w * inv_s2
-            r = dist - d
-            for a in range(3):
-                g[3 * i + a] += wr * r * u[a]
-                g[3 * j + a] -= wr * r * u[a]
-                for b in range(3):
-                    v = wr * u[a] * u[b]
-                    H[3 * i + a, 3 * i + b] += v
-                    H[3 * j + a, 3 * j + b] += v
-                    H[3 * i + a, 3 * j + b] -= v
-                    H[3 * j + a, 3 * i + b] -= v
-
-
-PIVOT_FLOOR = 1e-8
-
-
-@njit(cache=True)
-def _normal_equations_lower(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g):  # pragma: no cover
-    """`_normal_equations` (the same g), but of H only the lower triangle (H[p, q], p >= q;
-    the rest is left as it was), all `_reduced_solve` reads: 21 entries per range instead of
-    36. Not the same bits as `_normal_equations`' lower triangle (an off-diagonal block takes
-    u_a u_b where the full matrix's transpose has u_b u_a)."""
-    n = xt.shape[0]
-    N = 3 * n
-    for p in range(N):
-        for q in range(p + 1):
-            H[p, q] = 0.0
-    g[:] = 0.0
-    for i in range(n):
-        w = gw[i]
-        if w > 0:
-            for a in range(3):
-                for b in range(3):
-                    if b <= a:
+                    if not lower or b <= a:
                         H[3 * i + a, 3 * i + b] += w * G[a, b]
                     g[3 * i + a] += w * G[a, b] * (xt[i, b] - rep[i, b])
         if prior_w > 0 and np.isfinite(pr[i, 0]):
@@ -203,10 +163,17 @@ def _normal_equations_lower(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g)
                 g[3 * j + a] -= wr * r * u[a]
                 for b in range(3):
                     v = wr * u[a] * u[b]
-                    if b <= a:
+                    if not lower or b <= a:
                         H[3 * i + a, 3 * i + b] += v
                         H[3 * j + a, 3 * j + b] += v
-                    H[3 * lo + a, 3 * hi + b] -= v
+                    if lower:
+                        H[3 * lo + a, 3 * hi + b] -= v
+                    else:
+                        H[3 * i + a, 3 * j + b] -= v
+                        H[3 * j + a, 3 * i + b] -= v
+
+
+PIVOT_FLOOR = 1e-8
 
 
 @njit(cache=True)
@@ -404,7 +371,7 @@ def levenberg_marquardt_kernel(
             if full:
                 _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g)
             else:
-                _normal_equations_lower(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g)
+                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, True)
             scale = 1.0
             for k in range(N):
                 scale = max(scale, abs(H[k, k]))

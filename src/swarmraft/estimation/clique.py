@@ -30,6 +30,8 @@ needs one more honest drone to rule out) is reported unidentifiable rather than 
 
 from __future__ import annotations
 
+from itertools import islice
+
 import networkx as nx
 import numpy as np
 from pydantic import Field
@@ -45,6 +47,12 @@ from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 class CliqueParams(IntegrityParams):
     k: float = Field(4.0, gt=0, description="consistency threshold, sigmas")
     tol: float = Field(0.01, ge=0, description="absolute floor on the threshold, m")
+    max_cliques: int = Field(
+        1000,
+        ge=1,
+        description="maximal cliques enumerated per snapshot at most; beyond: unidentifiable (or "
+        "alarm if none seen passes), never a guess",
+    )
 
 
 def consistency_graph(
@@ -71,13 +79,52 @@ def consistency_graph(
     return ok
 
 
-def candidate_sets(adj: np.ndarray, f_max: int) -> list[frozenset[int]]:
+def candidate_sets(adj: np.ndarray, f_max: int, cap: int | None = None) -> tuple[list[frozenset[int]], bool]:
     """The sets that could be the honest drones of one graph: the maximal cliques that leave
-    at most ``f_max`` drones out, largest first."""
+    at most ``f_max`` drones out, largest first; and whether the enumeration stopped at
+    ``cap`` maximal cliques (networkx's order; the graph has more than ``cap``), in which
+    case the list holds the candidates among the first ``cap`` only."""
     n = adj.shape[0]
     g = nx.from_numpy_array(adj.astype(np.int8))
-    cliques = sorted((frozenset(c) for c in nx.find_cliques(g)), key=len, reverse=True)
-    return [c for c in cliques if n - len(c) <= f_max]
+    found = list(nx.find_cliques(g) if cap is None else islice(nx.find_cliques(g), cap + 1))
+    capped = cap is not None and len(found) > cap
+    cliques = sorted((frozenset(c) for c in found[:cap]), key=len, reverse=True)
+    return [c for c in cliques if n - len(c) <= f_max], capped
+
+
+def unmeasured_pairs(ranges: np.ndarray) -> np.ndarray:
+    """Per trial (T,), whether some pair of drones has no range either way (a sparse range
+    graph: drones out of each other's range, or a link the screening dropped)."""
+    n = ranges.shape[1]
+    none = np.isnan(ranges) & np.isnan(np.swapaxes(ranges, 1, 2))
+    return (none & ~np.eye(n, dtype=bool)).any(axis=(1, 2))
+
+
+def excluded_sets(
+    reported: np.ndarray, ranges: np.ndarray, masks: np.ndarray, noise: NoiseModel, f_max: int, p_fa: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For candidates (B, n) that fail the residual tests, the drone with the largest
+    whitened GNSS residual left out, again and again, until the tests pass or ``f_max``
+    drones are out (fault exclusion inside the clique, as `fde` does). On a sparse range
+    graph an attacker ranged by few drones can agree with all of them, so the honest drones
+    are a clique but not a maximal one: the maximal clique holds them and that attacker.
+    Returns the final sets (B, n), whether each passes (B,) and its estimate (B, n, 3)."""
+    masks = masks.copy()
+    n = masks.shape[1]
+    passed = np.zeros(len(masks), dtype=bool)
+    x = np.zeros(masks.shape + (3,))
+    active = np.arange(len(masks))
+    while active.size:
+        m = masks[active]
+        xa = joint_estimate(reported[active], ranges[active], m, noise.gnss_cov, noise.range_sigma)
+        _, gq, total, dof = residual_statistics(xa, reported[active], ranges[active], m, noise)
+        ok = tests_pass(gq, total, dof, m, p_fa)
+        x[active], passed[active] = xa, ok
+        go = ~ok & ((~m).sum(axis=1) < f_max)
+        worst = np.argmax(np.where(m, gq, -np.inf), axis=1)
+        masks[active[go], worst[go]] = False
+        active = active[go]
+    return masks, passed, x
 
 
 @register("clique", CliqueParams, "maximum clique of the pairwise consistency graph + joint estimate")
@@ -88,7 +135,9 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     noise = NoiseModel.of(batch, p, "clique")
     adj = consistency_graph(reported, ranges, noise, p.k, p.tol)
     f_max = resolve_f_max(p, n, "clique")
-    cands = [candidate_sets(adj[t], f_max) for t in range(T)]
+    found = [candidate_sets(adj[t], f_max, p.max_cliques) for t in range(T)]
+    cands = [cs for cs, _ in found]
+    capped = np.array([c for _, c in found], dtype=bool)
     # Test every candidate at once: does a joint estimate trusting it explain the data?
     owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
     masks = np.zeros((owner.size, n), dtype=bool)
@@ -100,6 +149,19 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
         _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
         passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
+    # On a sparse range graph, where no candidate passes: exclusion inside the largest
+    # candidates (`excluded_sets`); a dense graph keeps the maximal cliques as they are.
+    sparse = unmeasured_pairs(ranges)
+    retry = []
+    for t, cs in enumerate(cands):
+        ks = np.flatnonzero(owner == t)
+        if sparse[t] and not capped[t] and cs and not passed[ks].any():
+            retry.append(ks[masks[ks].sum(axis=1) == len(cs[0])])
+    if retry:
+        ks = np.concatenate(retry)
+        sets, ok, xs = excluded_sets(reported[owner[ks]], ranges[owner[ks]], masks[ks], noise, f_max, p.p_fa)
+        ks, sets, xs = ks[ok], sets[ok], xs[ok]  # a set that still fails stays as it was
+        masks[ks], passed[ks], x[ks] = sets, True, xs
     trusted = np.ones((T, n), dtype=bool)
     suspects = np.zeros((T, n), dtype=bool)
     start = np.full((T, n, 3), np.nan)
@@ -109,10 +171,17 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         ks = np.arange(k, k + len(cs))
         k += len(cs)
         plausible = [j for j in ks if passed[j]]
-        if not cs:  # more than f_max drones outside every clique: nothing to exclude
+        if plausible:  # exclusion can make two candidates the same set: count it once
+            _, first = np.unique(masks[plausible], axis=0, return_index=True)
+            plausible = [plausible[i] for i in sorted(first)]
+        if not cs or (capped[t] and not plausible):
+            # more than f_max drones outside every clique (nothing to exclude), or the
+            # enumeration stopped at max_cliques with no passing candidate among those seen
             status[t] = "alarm"
             continue
-        if len(plausible) >= 2:
+        if len(plausible) >= 2 or capped[t]:
+            # two explanations, or the enumeration stopped before it saw every clique: some
+            # unseen one may explain the data as well, so this one cannot be called unique
             status[t] = "unidentifiable"
             trusted[t] = np.logical_and.reduce(masks[plausible])  # what every explanation trusts
             suspects[t] = ~np.logical_or.reduce(masks[plausible])  # what none trusts
@@ -123,5 +192,12 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         suspects[t] = ~masks[pick]
         start[t] = x[pick]
     return finish(
-        batch, p, noise, trusted, (start,), status, suspects, diagnostics={"degree": adj.sum(axis=2)}
+        batch,
+        p,
+        noise,
+        trusted,
+        (start,),
+        status,
+        suspects,
+        diagnostics={"degree": adj.sum(axis=2), "capped": capped},
     )

@@ -89,17 +89,45 @@ def _classical_mds(d: np.ndarray) -> np.ndarray:
     return out
 
 
-def _mds(ranges: np.ndarray) -> np.ndarray:
+def sparse_graph(ranges: np.ndarray) -> np.ndarray:
+    """Per trial (T,), whether the range graph is sparse: two drones that each range with
+    someone have no range between them either way (out of each other's range). A drone with
+    no range at all (outside the swarm) does not make it sparse."""
+    n = ranges.shape[1]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    linked = meas | np.swapaxes(meas, 1, 2)
+    some = linked.any(axis=2)
+    gap = ~linked & some[:, :, None] & some[:, None, :] & ~np.eye(n, dtype=bool)
+    return gap.any(axis=(1, 2))
+
+
+def _geodesic(d: np.ndarray) -> np.ndarray:
+    """d (n, n) with each unmeasured pair (nan) filled by its shortest path through measured
+    ones (nan where none): on a sparse range graph, a complete matrix for classical MDS whose
+    error (paths bend round) the fit then removes."""
+    from scipy.sparse.csgraph import shortest_path
+
+    w = np.where(np.isnan(d), 0.0, d)  # csgraph: 0 means no edge
+    np.fill_diagonal(w, 0.0)
+    g = shortest_path(w, method="D", directed=False)
+    return np.where(np.isnan(d), np.where(np.isfinite(g), g, np.nan), d)
+
+
+def _mds(ranges: np.ndarray, geodesic: np.ndarray | None = None) -> np.ndarray:
     """A start for the shape (T, n, 3): classical MDS of the symmetrised ranges of the largest
     set of drones found (greedily) with every pair measured, then the others one by one by
     closed-form multilateration from 4 or more placed drones they range with (those that
-    never have 4 stay at the origin)."""
+    never have 4 stay at the origin). Trials that ``geodesic`` (T,) marks (a sparse range
+    graph, `sparse_graph`) first fill unmeasured pairs by shortest paths (`_geodesic`): from
+    the few drones that range each other all, multilateration strays into folds."""
     T, n, _ = ranges.shape
     sym = _both_ways(ranges)
     sym[:, np.arange(n), np.arange(n)] = 0.0
     x = np.zeros((T, n, 3))
     for t in range(T):
         d = sym[t]
+        if geodesic is not None and geodesic[t]:
+            d = _geodesic(d)
         gaps = np.isnan(d)
         np.fill_diagonal(gaps, False)
         core = np.ones(n, dtype=bool)
@@ -283,7 +311,8 @@ def screen(
     # one-sided robust loss and drop the ranges reading long
     base = (meas & ~dropped & ~tampering[:, :, None]).astype(float)
     linked = (base > 0) | (np.swapaxes(base, 1, 2) > 0)
-    x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan)), ranges, base, sigma)
+    sparse = sparse_graph(ranges)
+    x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan), sparse), ranges, base, sigma)
     z = _long_z(x, ranges, base, sigma)
     long_ = np.zeros((T, n, n), dtype=bool)
     enlarged = np.zeros((T, n), dtype=bool)
@@ -346,4 +375,5 @@ def range_shape(ranges: np.ndarray, use: np.ndarray, sigma: float) -> np.ndarray
     multilateration, then Levenberg-Marquardt on the ranges ``use`` (T, n, n) marks, each
     with noise ``sigma`` (m) (the fit `screen` makes). A drone with fewer than 4 placed
     drones to range with stays at the origin."""
-    return _fit(_mds(np.where(use, ranges, np.nan)), ranges, use.astype(float), sigma)
+    start = _mds(np.where(use, ranges, np.nan), sparse_graph(ranges))
+    return _fit(start, ranges, use.astype(float), sigma)

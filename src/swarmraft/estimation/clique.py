@@ -43,6 +43,8 @@ from swarmraft.estimation.paper import report_distances
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
+_CANDIDATE_FLOATS = 4_000_000  # ranges of the candidates tested at once (32 MB)
+
 
 class CliqueParams(IntegrityParams):
     k: float = Field(4.0, gt=0, description="consistency threshold, sigmas")
@@ -110,7 +112,6 @@ def excluded_sets(
     are a clique but not a maximal one: the maximal clique holds them and that attacker.
     Returns the final sets (B, n), whether each passes (B,) and its estimate (B, n, 3)."""
     masks = masks.copy()
-    n = masks.shape[1]
     passed = np.zeros(len(masks), dtype=bool)
     x = np.zeros(masks.shape + (3,))
     active = np.arange(len(masks))
@@ -145,10 +146,16 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         masks[k, list(c)] = True
     passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
     x = np.zeros((owner.size, n, 3))
-    if owner.size:
-        x = joint_estimate(reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma)
-        _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
-        passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
+    # in groups of at most _CANDIDATE_FLOATS of ranges (each verdict is its own snapshot's,
+    # so the grouping changes nothing): 1000 candidates of 256 drones would copy 0.5 GB of
+    # ranges, and the residuals several times that
+    step = max(1, _CANDIDATE_FLOATS // (n * n))
+    for lo in range(0, owner.size, step):
+        g = slice(lo, lo + step)
+        rep, rng = reported[owner[g]], ranges[owner[g]]
+        x[g] = joint_estimate(rep, rng, masks[g], noise.gnss_cov, noise.range_sigma)
+        _, gnss_q, total[g], dof = residual_statistics(x[g], rep, rng, masks[g], noise)
+        passed[g] = tests_pass(gnss_q, total[g], dof, masks[g], p.p_fa)
     # On a sparse range graph, where no candidate passes: exclusion inside the largest
     # candidates (`excluded_sets`); a dense graph keeps the maximal cliques as they are.
     sparse = unmeasured_pairs(ranges)

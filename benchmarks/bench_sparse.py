@@ -14,6 +14,7 @@ Run: .venv/bin/python benchmarks/bench_sparse.py [--steps 40] [--runs 3] [--n 65
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import time
@@ -53,10 +54,10 @@ def main() -> None:
     d = draw(config, np.random.default_rng(args.seed), args.steps, n, f)
     meas = ~np.isnan(d.ranges) & ~np.eye(n, dtype=bool)
     deg = meas.sum(axis=2)
-    side = np.ptp(d.truth @ np.eye(3)[:, :2], axis=1).max()
+    side = (math.ceil(math.sqrt(math.ceil(n / 2))) - 1) * args.spacing  # `world.formation`'s grid
     print(
-        f"n = {n}, f = {f}, max range {args.max_range:g} m, {args.spacing:g} m grid "
-        f"(rotated extent up to {side:.0f} m), realistic preset, {args.steps} snapshots; "
+        f"n = {n}, f = {f}, max range {args.max_range:g} m, a {side:g} m formation ({args.spacing:g} m "
+        f"grid, 2 layers), realistic preset, {args.steps} snapshots; "
         f"ranged drones per drone: min {deg.min()}, median {np.median(deg):g}, max {deg.max()}; "
         f"load average {os.getloadavg()[0]:.2f}"
     )

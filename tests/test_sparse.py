@@ -155,3 +155,20 @@ def test_clique_excludes_inside_a_clique_on_a_sparse_graph():
     assert (v.faulty == d.attackers).all(axis=1).sum() >= 3
     err = np.linalg.norm(v.positions - d.truth, axis=2)
     assert (err <= np.fmax(20.0, np.hypot(v.hpl, v.vpl))).all()
+
+
+def test_screen_keeps_the_links_of_two_clusters_out_of_range():
+    """Two 12-drone clusters 500 m apart (no range between them; one drone of the first with
+    no range at all): each cluster's shape is fitted on its own, nothing reads long. With both
+    clusters' starts on top of each other the fit pulled them together and 110 honest links
+    were dropped."""
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 40, (1, 12, 3))
+    truth = np.concatenate([a, a + [500.0, 0.0, 0.0]], axis=1)
+    n = truth.shape[1]
+    true = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3)
+    ranges = np.where(true > 100, np.nan, true + 0.1 * rng.standard_normal((1, n, n)))
+    ranges[0, 5, :] = ranges[0, :, 5] = np.nan
+    ranges[:, np.arange(n), np.arange(n)] = 0.0
+    s = screen(ranges, 0.1)
+    assert s.dropped.sum() == 0 and not s.enlarged.any()

@@ -113,13 +113,34 @@ def _geodesic(d: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(d), np.where(np.isfinite(g), g, np.nan), d)
 
 
+_APART = 1e4  # m between the starts of range-graph components that no range connects
+
+
+def _components_mds(g: np.ndarray) -> np.ndarray:
+    """Points (n, 3) from shortest-path distances g (n, n; nan between components): classical
+    MDS of each connected component on its own, the components set `_APART` apart along x
+    (nothing fixes where one lies relative to another; placed on top of each other, the fit
+    pulled them into each other and 110 honest links of two 12-drone clusters read long)."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(g)
+    _, label = connected_components(np.isfinite(g) & ~np.eye(n, dtype=bool), directed=False)
+    out = np.zeros((n, 3))
+    for k in range(label.max() + 1):
+        idx = np.flatnonzero(label == k)
+        out[idx] = _classical_mds(g[np.ix_(idx, idx)])
+        out[idx, 0] += k * _APART
+    return out
+
+
 def _mds(ranges: np.ndarray, geodesic: np.ndarray | None = None) -> np.ndarray:
     """A start for the shape (T, n, 3): classical MDS of the symmetrised ranges of the largest
     set of drones found (greedily) with every pair measured, then the others one by one by
     closed-form multilateration from 4 or more placed drones they range with (those that
     never have 4 stay at the origin). Trials that ``geodesic`` (T,) marks (a sparse range
-    graph, `sparse_graph`) first fill unmeasured pairs by shortest paths (`_geodesic`): from
-    the few drones that range each other all, multilateration strays into folds."""
+    graph, `sparse_graph`) instead fill unmeasured pairs by shortest paths (`_geodesic`) and
+    take each connected component's MDS (`_components_mds`): from the few drones that all
+    range each other, multilateration strays into folds."""
     T, n, _ = ranges.shape
     sym = _both_ways(ranges)
     sym[:, np.arange(n), np.arange(n)] = 0.0
@@ -127,7 +148,8 @@ def _mds(ranges: np.ndarray, geodesic: np.ndarray | None = None) -> np.ndarray:
     for t in range(T):
         d = sym[t]
         if geodesic is not None and geodesic[t]:
-            d = _geodesic(d)
+            x[t] = _components_mds(_geodesic(d))
+            continue
         gaps = np.isnan(d)
         np.fill_diagonal(gaps, False)
         core = np.ones(n, dtype=bool)

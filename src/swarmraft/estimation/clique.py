@@ -38,6 +38,7 @@ from pydantic import Field
 
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max
 from swarmraft.estimation.joint import joint_estimate, residual_statistics, tests_pass
+from swarmraft.estimation.links import SPARSE_SHARE, linked_share
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.paper import report_distances
 from swarmraft.estimation.registry import register
@@ -94,14 +95,6 @@ def candidate_sets(adj: np.ndarray, f_max: int, cap: int | None = None) -> tuple
     return [c for c in cliques if n - len(c) <= f_max], capped
 
 
-def unmeasured_pairs(ranges: np.ndarray) -> np.ndarray:
-    """Per trial (T,), whether some pair of drones has no range either way (a sparse range
-    graph: drones out of each other's range, or a link the screening dropped)."""
-    n = ranges.shape[1]
-    none = np.isnan(ranges) & np.isnan(np.swapaxes(ranges, 1, 2))
-    return (none & ~np.eye(n, dtype=bool)).any(axis=(1, 2))
-
-
 def excluded_sets(
     reported: np.ndarray, ranges: np.ndarray, masks: np.ndarray, noise: NoiseModel, f_max: int, p_fa: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -156,9 +149,11 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         x[g] = joint_estimate(rep, rng, masks[g], noise.gnss_cov, noise.range_sigma)
         _, gnss_q, total[g], dof = residual_statistics(x[g], rep, rng, masks[g], noise)
         passed[g] = tests_pass(gnss_q, total[g], dof, masks[g], p.p_fa)
-    # On a sparse range graph, where no candidate passes: exclusion inside the largest
-    # candidates (`excluded_sets`); a dense graph keeps the maximal cliques as they are.
-    sparse = unmeasured_pairs(ranges)
+    # On a sparse range graph (at most SPARSE_SHARE of the pairs ranged: drones out of each
+    # other's range), where no candidate passes: exclusion inside the largest candidates
+    # (`excluded_sets`). A dense graph keeps the maximal cliques as they are, also where the
+    # screening dropped some links (NLOS): its verdicts do not change.
+    sparse = linked_share(ranges) <= SPARSE_SHARE
     retry = []
     for t, cs in enumerate(cands):
         ks = np.flatnonzero(owner == t)

@@ -49,6 +49,7 @@ from swarmraft.estimation.trust_region import linear_multilateration
 
 K_LOW = 3.0  # once a link reads long beyond k, the links beyond this many sigmas are dropped
 TAMPER_SHARE = 0.5  # a drone disagreeing with more than this share of its links (one grossly) tampers
+SPARSE_SHARE = 0.5  # a screened range graph with at most this share of its pairs ranged is sparse
 _LOOSE = 1e8  # m^2: the variance of the pseudo-report that only fixes the fitted shape's gauge
 
 
@@ -99,6 +100,17 @@ def sparse_graph(ranges: np.ndarray) -> np.ndarray:
     some = linked.any(axis=2)
     gap = ~linked & some[:, :, None] & some[:, None, :] & ~np.eye(n, dtype=bool)
     return gap.any(axis=(1, 2))
+
+
+def linked_share(ranges: np.ndarray) -> np.ndarray:
+    """Per trial (T,), the share of pairs of drones with a range either way, among the drones
+    that range with someone (1 where fewer than two do)."""
+    n = ranges.shape[1]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    linked = meas | np.swapaxes(meas, 1, 2)
+    m = linked.any(axis=2).sum(axis=1)
+    pairs = m * (m - 1)
+    return np.where(pairs > 0, linked.sum(axis=(1, 2)) / np.maximum(pairs, 1), 1.0)
 
 
 def _geodesic(d: np.ndarray) -> np.ndarray:
@@ -397,5 +409,8 @@ def range_shape(ranges: np.ndarray, use: np.ndarray, sigma: float) -> np.ndarray
     multilateration, then Levenberg-Marquardt on the ranges ``use`` (T, n, n) marks, each
     with noise ``sigma`` (m) (the fit `screen` makes). A drone with fewer than 4 placed
     drones to range with stays at the origin."""
-    start = _mds(np.where(use, ranges, np.nan), sparse_graph(ranges))
+    # the ranges a detector sees are screened already: a graph the screening left gaps in
+    # (NLOS) keeps its start; only a sparse one (at most SPARSE_SHARE of its pairs ranged)
+    # takes the shortest-path start
+    start = _mds(np.where(use, ranges, np.nan), linked_share(ranges) <= SPARSE_SHARE)
     return _fit(start, ranges, use.astype(float), sigma)

@@ -26,6 +26,12 @@ inconsistent). The chosen set goes through `integrity.finish` (robust estimate f
 starts including the candidate's own, statuses, protection levels). With ``f_max`` = f, n >= 2f + 4
 identifies f colluders exactly; with the default a reflection about three pivots (which
 needs one more honest drone to rule out) is reported unidentifiable rather than guessed.
+
+Large swarms (docs/detectors.md): the maximal cliques are enumerated up to ``max_cliques``;
+a snapshot with more gets no ``ok`` verdict (``unidentifiable`` when a clique seen passes,
+since one not seen might too; ``alarm`` when none does). On a sparse range graph a pair
+without a range is consistent, so an attacker ranged by a few drones can agree with all of
+them; where no maximal clique passes there, the largest go through fault exclusion.
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ import numpy as np
 
 from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
 from swarmraft.protocol.drone import Prior, compute_record
+from swarmraft.protocol.signing import _check
 from swarmraft.sim.scenario import Scenario
 from swarmraft.sim.sensing import ScenarioWorld
 
@@ -43,12 +44,14 @@ def cpu_ms(fn) -> tuple[float, object]:  # noqa: ANN001
 
 def parts(rec: StepRecord, keys: Keyring, w: ScenarioWorld, voter: SwarmDrone) -> tuple[float, float]:
     """CPU ms of the signatures the check verifies (the leader's, and the reports' that the
-    voter did not verify on receiving them directly) and of the re-run."""
+    voter did not verify on receiving them directly: its own, which the fan-out does not
+    send it) and of the re-run. The signatures are checked again here without the keyring's
+    memo (which holds them all by now), so their cost is measured, not the memo's."""
     t0 = time.process_time()
-    keys.verify_bytes(rec.leader, rec.body(), rec.signature)
+    _check(keys.public[rec.leader], rec.body(), rec.signature)
     for r in rec.reports:
-        if not voter.audit.verified_directly(r):
-            keys.verify(r)
+        if r.drone == voter.index:
+            _check(keys.public[r.drone], r.body(), r.signature)
     t1 = time.process_time()
     prior = None
     if rec.prior_step >= 0:
@@ -70,7 +73,8 @@ def run(n: int, detector: str, steps: int) -> dict[str, object]:
     w = ScenarioWorld.build(sc)
     keys = Keyring.generate(n, np.random.default_rng(0))
     leader = SwarmDrone(0, w.protocol, keys, audit=True)
-    voter = SwarmDrone(1, w.protocol, keys, audit=True)
+    # its own keyring (and so its own memo of checked signatures), as on a real drone
+    voter = SwarmDrone(1, w.protocol, Keyring(keys.private, keys.public), audit=True)
     base_t, base_pos = np.zeros(n), w.traj.positions[0].copy()
     rows: dict[str, list[float]] = {"check": [], "signatures": [], "rerun": [], "fanout": []}
     sizes, verdict_sizes = [], []

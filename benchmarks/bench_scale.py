@@ -85,9 +85,12 @@ def main() -> None:
         f"(target <= {TARGET_REAL_TIME:g}x: {'MET' if fast else 'NOT MET'}); "
         f"peak {peak_mb():.0f} MB (target <= {TARGET_MB:g}: {'MET' if peak_mb() <= TARGET_MB else 'NOT MET'})"
     )
+    sk = result.summary["skipped_causes"]
     print(
         f"  steps committed {int(log.committed.sum())}/{len(log.t)}, "
-        f"skipped {int((~log.committed).sum())}, records identical on all nodes: "
+        f"skipped {int((~log.committed).sum())} ({sk['before_first_record']} before the first record, "
+        f"{sk['after_fault']} after a fault, {sk['unexplained']} unexplained "
+        f"{sk['unexplained_times_s']}), records identical on all nodes: "
         f"{result.summary['records_identical_on_all_nodes']}"
     )
 

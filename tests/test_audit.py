@@ -197,6 +197,29 @@ def test_learner_refuses_to_apply() -> None:
     assert v.apply(chain[12]) is not None
 
 
+def test_a_leader_decides_each_step_once_though_reports_come_late() -> None:
+    """A report for a step the leader has already verified (a resend that arrived after the
+    verification, when the record is not applied yet) is acknowledged, but the step is not
+    verified again: a second record of the step would carry only the late reports, and every
+    voter holding the others would count them as left out (a networked swarm on a loaded
+    machine proposed two records for half its steps, and its voters deposed an honest leader
+    for censorship)."""
+    w, keys, _ = honest_chain()
+    leader = SwarmDrone(0, w.protocol, keys, audit=True)
+    ranges = w.measured_ranges(0, w.ins_estimate(0, np.zeros(N), w.traj.positions[0].copy()))
+    reports = [
+        SwarmDrone(i, w.protocol, keys).make_report(0, w.fix[0, i], "gnss", ranges[i], w.innovation(0, i))
+        for i in range(N)
+    ]
+    for r in reports[:-1]:
+        assert leader.receive(r)
+    first = leader.verify_step(0, 1)
+    assert first is not None and len(first.reports) == N - 1
+    assert leader.receive(reports[-1])  # acknowledged: a resend cannot help
+    assert leader.verify_step(0, 1) is None  # the deadline's call: step 0 is decided
+    assert leader.rejected == 0  # late, not forged
+
+
 def test_censorship_windows_restart_with_each_term() -> None:
     """k = 2 of m = 5: three omissions of one drone's timely report in one term make the
     leader faulty; omissions under an earlier term do not count against a new one."""

@@ -1,6 +1,7 @@
 """What a mission's summary tells a user: wrong partitions, detection over time, honest
 baselines, warnings, and the --json output for scripts."""
 
+import copy
 import json
 from pathlib import Path
 
@@ -179,6 +180,31 @@ def test_honest_error_is_reported_after_each_fault(small):
     vals = errors["swarmraft"][rows][:, honest][log.alive[rows][:, honest]]
     assert a["honest_error_swarmraft_m"] == pytest.approx(np.nanmean(vals), abs=1e-3)
     assert a["honest_error_gnss_m"] is not None
+
+
+def test_every_skipped_step_is_put_down_to_a_cause(small):
+    """Skipped steps before the first record (the first election), within 2 s after a fault
+    event (here drone 6's crash at 4 s), and the rest: unexplained, listed by time."""
+    log = copy.deepcopy(small)
+    log.committed[:] = True
+    log.committed[[0, 1, 41, 75]] = False  # 0 and 0.1 s; 4.1 s; 7.5 s
+    s = summarize(log, error_series(log))
+    assert s["skipped_steps"] == 4
+    assert s["skipped_causes"] == {
+        "before_first_record": 2,
+        "after_fault": 1,
+        "unexplained": 1,
+        "unexplained_times_s": [7.5],
+    }
+
+
+def test_the_demo_skips_no_step_without_a_cause(demo):
+    out, summary, _, _ = demo
+    c = summary["skipped_causes"]
+    assert summary["skipped_steps"] > 0  # the first election and the leader's crash
+    assert c["before_first_record"] + c["after_fault"] == summary["skipped_steps"]
+    assert c["unexplained"] == 0 and c["unexplained_times_s"] == []
+    assert "0 unexplained" in " ".join(out.split())
 
 
 def test_mission_json_is_the_summary_and_nothing_else(tmp_path):

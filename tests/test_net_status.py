@@ -5,6 +5,7 @@ with its followers' progress, and a killed drone shows as not answering (exit st
 
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -115,9 +116,12 @@ def test_status_of_a_running_swarm_and_of_a_killed_drone(tmp_path):
         swarm.procs[follower].kill()
         time.sleep(0.5)
         done = status_cli(swarm.path)
-        assert done.returncode == 1
-        assert f"1 of 4 drones did not answer: {follower}" in done.stdout
-        assert "no answer" in done.stdout and f"Leader {lead['drone']}'s followers" in done.stdout
+        out = done.stdout
+        assert done.returncode == 1, out
+        assert f"1 of 4 drones did not answer: {follower}" in out, out
+        # the killed drone's row, and the followers of whichever drone leads now (on a loaded
+        # machine the leader of the first question may have been deposed since)
+        assert "no answer" in out and re.search(r"Leader \d+'s followers", out), out
         swarm.stop_all()
     stop = [e for e in events(swarm.nodes_dir, lead["drone"]) if e["event"] == "stop"][-1]
     assert stop["counters"]["status_answered"] >= 1 and stop["counters"]["status_refused"] >= 1

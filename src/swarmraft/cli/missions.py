@@ -99,10 +99,18 @@ def print_mission_summary(summary: dict) -> None:
     )
     for w in s["warnings"]:
         print_wrapped(f"[red]warning[/]: {w}", 2)
+    from swarmraft.experiments.mission import FAULT_SKIP_WINDOW_S
+
+    sk = s["skipped_causes"]
+    when = ", ".join(f"{t:g} s" for t in sk["unexplained_times_s"])
+    unexplained = (
+        f"[red]{sk['unexplained']} unexplained[/] (at {when})" if sk["unexplained"] else "0 unexplained"
+    )
     print_wrapped(
         f"committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
-        f"(longest run {s['longest_skipped_run']}); records identical on all nodes: "
-        f"{'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}",
+        f"(longest run {s['longest_skipped_run']}: {sk['before_first_record']} before the first record, "
+        f"{sk['after_fault']} within {FAULT_SKIP_WINDOW_S:g} s after a fault, {unexplained}); "
+        f"records identical on all nodes: {'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}",
         2,
     )
     ig = s["integrity"]

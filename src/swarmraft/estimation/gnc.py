@@ -143,7 +143,9 @@ def _gnc_kernel(
                 gw[0, i] = (mu * c2g / (r2g[i] + mu * c2g)) ** 2
                 for j in range(n):
                     rw[0, i, j] = (mu * c2r / (r2r[i, j] + mu * c2r)) ** 2 if meas[t, i, j] else 0.0
-            levenberg_marquardt_kernel(xt, rep, rng_, gw, rw, G, inv_s2, inner, 1e-7, xt, 0.0, cost, conv)
+            levenberg_marquardt_kernel(
+                xt, rep, rng_, gw, rw, G, inv_s2, inner, 1e-7, xt, 0.0, cost, conv, False
+            )
             residuals_kernel(xt, rep, rng_, G_half, range_sigma, rg, rr)
             _square_norms(rg[0], r2g)
             for i in range(n):

@@ -290,6 +290,7 @@ def subset_separations(
         20,
         prior=pr,
         prior_sigma=prior_sigma if has_prior else None,
+        reduced=True,  # a separation only feeds the separation test
     )
     out[t_idx, j_idx] = xj - x[t_idx]
     return out

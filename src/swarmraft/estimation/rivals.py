@@ -86,6 +86,7 @@ def rival_sets(
         iters=iters,
         prior=None if prior is None or not prior_sigma else prior[owner],
         prior_sigma=prior_sigma,
+        reduced=True,  # a rival only feeds the tests and the comparison with the levels
     )
     _, gnss_q, total, dof = residual_statistics(xs, rep, rng_, sets, noise)
     return Rivals(owner, sets, tests_pass(gnss_q, total, dof, sets, p_fa), xs, total)

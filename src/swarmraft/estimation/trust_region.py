@@ -359,18 +359,23 @@ def warm_up() -> None:
     solve_ranges(np.eye(3)[None] * 10.0, np.full((1, 3), 10.0), np.ones((1, 3), dtype=bool), np.ones((1, 3)))
 
 
-def linear_multilateration(anchors: np.ndarray, dists: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def linear_multilateration(
+    anchors: np.ndarray, dists: np.ndarray, mask: np.ndarray, fast: bool = False
+) -> np.ndarray:
     """Closed-form linearised multilateration, batched: (B, M, 3), (B, M), (B, M) -> (B, 3).
 
     Subtracting the anchor mean from ``||x||^2 - 2 a_j.x + ||a_j||^2 = d_j^2`` gives a linear
     system in x; it is solved in the least-squares sense (minimum norm where it is singular,
     e.g. with 3 anchors, whose mirror ambiguity it cannot resolve). One compiled kernel
-    (`_multilateration_kernel`).
+    (`_multilateration_kernel`). ``fast``: the 3x3 normal equations by Cholesky where they
+    are well conditioned (every pivot above 1e-6 of its diagonal entry), np.linalg.pinv's
+    SVD elsewhere: the same solution up to rounding, not the same bits, and no LAPACK call
+    for most problems (for starts whose solve only feeds a test).
     """
     anchors = np.ascontiguousarray(anchors, float)
     out = np.empty((anchors.shape[0], 3))
     _multilateration_kernel(
-        anchors, np.ascontiguousarray(dists, float), np.ascontiguousarray(mask, np.bool_), out
+        anchors, np.ascontiguousarray(dists, float), np.ascontiguousarray(mask, np.bool_), out, bool(fast)
     )
     return out
 
@@ -398,12 +403,41 @@ def _contiguous_dot(a, b):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _multilateration_kernel(anchors, dists, mask, out):  # pragma: no cover - compiled
+def _spd_solve3(M, r, L, out):  # pragma: no cover - compiled
+    """out = M^-1 r for a symmetric 3x3 M by Cholesky (L its factor, in place); False, out
+    untouched, unless every pivot is above 1e-6 of its diagonal entry (well conditioned)."""
+    for j in range(3):
+        d = M[j, j]
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not (d > 1e-6 * M[j, j]):
+            return False
+        d = np.sqrt(d)
+        L[j, j] = d
+        for i in range(j + 1, 3):
+            v = M[i, j]
+            for p in range(j):
+                v -= L[i, p] * L[j, p]
+            L[i, j] = v / d
+    y0 = r[0] / L[0, 0]
+    y1 = (r[1] - L[1, 0] * y0) / L[1, 1]
+    y2 = (r[2] - L[2, 0] * y0 - L[2, 1] * y1) / L[2, 2]
+    y2 = y2 / L[2, 2]
+    y1 = (y1 - L[2, 1] * y2) / L[1, 1]
+    out[0] = (y0 - L[1, 0] * y1 - L[2, 0] * y2) / L[0, 0]
+    out[1] = y1
+    out[2] = y2
+    return True
+
+
+@njit(cache=True)
+def _multilateration_kernel(anchors, dists, mask, out, fast):  # pragma: no cover - compiled
     """`linear_multilateration` problem by problem into out (B, 3), in the order of operations
     of the numpy expression it replaced (its einsum sums, np.linalg.pinv's SVD, cutoff and
     product), so bit for bit the same: numpy's per-call overhead on these few 3-vectors was
-    most of its time."""
+    most of its time. With ``fast``, see `linear_multilateration`."""
     B, M, _ = anchors.shape
+    L = np.empty((3, 3))
     w = np.empty(M)
     t = np.empty(M)
     rhs = np.empty(M)
@@ -442,6 +476,8 @@ def _multilateration_kernel(anchors, dists, mask, out):  # pragma: no cover - co
                 for m in range(M):
                     acc += A[m, i] * A[m, j]
                 AtA[i, j] = acc
+        if fast and _spd_solve3(AtA, Atb, L, out[b]):
+            continue
         # np.linalg.pinv: SVD, singular values below 1e-15 of the largest dropped
         u, s, vt = np.linalg.svd(AtA, full_matrices=False)
         cutoff = 1e-15 * s.max()

@@ -261,6 +261,33 @@ def _majority_warnings(log: MissionLog) -> list[str]:
     return out
 
 
+#: A skipped step at most this long after an event of the mission (a fault, or what it set
+#: off: a promotion, a removal) is put down to it: a new leader comes within two election
+#: timeouts (0.6 s), a committee change or a restarted drone's catch-up takes longer.
+FAULT_SKIP_WINDOW_S = 2.0
+
+
+def skipped_causes(log: MissionLog) -> dict[str, Any]:
+    """Each skipped step put down to one cause: before the first committed record (the first
+    election), within FAULT_SKIP_WINDOW_S after an event of the mission, or neither:
+    unexplained (the first 20 listed by time)."""
+    skipped = ~log.committed
+    done = np.flatnonzero(log.committed)
+    first = done[0] if done.size else len(log.t)
+    before = skipped & (np.arange(len(log.t)) < first)
+    near = np.zeros(len(log.t), dtype=bool)
+    for t, _ in log.events:
+        near |= (log.t >= t - 1e-9) & (log.t <= t + FAULT_SKIP_WINDOW_S + 1e-9)
+    after = skipped & ~before & near
+    other = skipped & ~before & ~after
+    return {
+        "before_first_record": int(before.sum()),
+        "after_fault": int(after.sum()),
+        "unexplained": int(other.sum()),
+        "unexplained_times_s": [round(float(t), 1) for t in log.t[other][:20]],
+    }
+
+
 def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndarray) -> list[dict[str, Any]]:
     """Per fault event, from it to the next one (or the mission's end): the honest drones'
     SwarmRaft error against their raw GNSS, skipped and wrong-partition steps."""
@@ -361,6 +388,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "committed_steps": committed,
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),
+        "skipped_causes": skipped_causes(log),
         "records_identical_on_all_nodes": log.agreement.identical,
         "bound_note": BOUND_NOTE,
         "sustained_detection_s": SUSTAIN_S,

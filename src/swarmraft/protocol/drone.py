@@ -154,6 +154,7 @@ class SwarmDrone:
         self.state = Applied()
         self.inbox: dict[int, dict[int, Report]] = {}
         self.last_seen: dict[int, int] = {}  # drone -> last step it reported
+        self.decided: set[int] = set()  # steps this drone verified as leader, not yet applied
         self.rejected = 0
         self.refused_applies = 0  # committed records this drone's audit refused to apply
         get_detector(config.detector)
@@ -228,7 +229,10 @@ class SwarmDrone:
 
     # -- leader -----------------------------------------------------------------------------
     def receive(self, report: Report) -> bool:
-        """Keep a report for its step if its signature verifies and the step is still open."""
+        """Keep a report for its step if its signature verifies and the step is still open
+        (not applied). One that comes after the step was verified is kept only until the next
+        verification: it is acknowledged (a resend cannot help) and tells `has_all` that its
+        drone is alive, but the step is not verified again (`verify_step`)."""
         if report.drone in self.inbox.get(report.step, {}):
             return True  # a resend of a report already verified and kept
         if report.step <= self.state.last_step or not self.keys.verify(report):
@@ -260,12 +264,16 @@ class SwarmDrone:
 
     def verify_step(self, step: int, term: int) -> StepRecord | None:
         """The leader's verdict for a step from the reports it holds (None if it has none,
-        or the step is already decided), with its evidence (unsigned: see `seal`)."""
+        or the step is already decided: applied, or verified here before), with its evidence
+        (unsigned: see `seal`). A step is verified once: a report arriving after that is not
+        kept (`receive`), so no second record of the step carries only the late ones."""
         reports = self.inbox.pop(step, {})
         for old in [k for k in self.inbox if k < step]:
             del self.inbox[old]
-        if not reports or step <= self.state.last_step:
+        if not reports or step <= self.state.last_step or step in self.decided:
             return None
+        self.decided = {k for k in self.decided if k > self.state.last_step}
+        self.decided.add(step)
         # The last record's positions are a prior (0.1 s old): they resolve the mirror of three
         # anchors, and stand in for a flagged drone whose geometry is insufficient. A record
         # whose verdict is alarm or unidentifiable is not a prior: its flags and positions are

@@ -302,11 +302,18 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
             )
     skipped = s.get("skipped_steps", 0)
     if skipped:
+        sk = s.get("skipped_causes")  # summaries written before it have none
+        why = (
+            f": {sk['before_first_record']} before the first record, {sk['after_fault']} soon after "
+            f"a fault, {sk['unexplained']} unexplained"
+            if sk
+            else ""
+        )
         out.append(
             (
                 "warn",
                 f"{skipped} of {s.get('steps')} steps skipped (no committed record; longest run "
-                f"{s.get('longest_skipped_run')})",
+                f"{s.get('longest_skipped_run')}{why})",
             )
         )
     else:

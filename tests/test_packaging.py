@@ -23,6 +23,7 @@ SHIPPED = [
     "paper-recovery-11-5",
     "paper-recovery-16-7",
     "paper-recovery-6-2",
+    "sparse-65",
 ]
 
 

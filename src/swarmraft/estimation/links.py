@@ -49,6 +49,7 @@ from swarmraft.estimation.trust_region import linear_multilateration
 
 K_LOW = 3.0  # once a link reads long beyond k, the links beyond this many sigmas are dropped
 TAMPER_SHARE = 0.5  # a drone disagreeing with more than this share of its links (one grossly) tampers
+SPARSE_SHARE = 0.5  # a screened range graph with at most this share of its pairs ranged is sparse
 _LOOSE = 1e8  # m^2: the variance of the pseudo-report that only fixes the fitted shape's gauge
 
 
@@ -89,17 +90,78 @@ def _classical_mds(d: np.ndarray) -> np.ndarray:
     return out
 
 
-def _mds(ranges: np.ndarray) -> np.ndarray:
+def sparse_graph(ranges: np.ndarray) -> np.ndarray:
+    """Per trial (T,), whether the range graph is sparse: two drones that each range with
+    someone have no range between them either way (out of each other's range). A drone with
+    no range at all (outside the swarm) does not make it sparse."""
+    n = ranges.shape[1]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    linked = meas | np.swapaxes(meas, 1, 2)
+    some = linked.any(axis=2)
+    gap = ~linked & some[:, :, None] & some[:, None, :] & ~np.eye(n, dtype=bool)
+    return gap.any(axis=(1, 2))
+
+
+def linked_share(ranges: np.ndarray) -> np.ndarray:
+    """Per trial (T,), the share of pairs of drones with a range either way, among the drones
+    that range with someone (1 where fewer than two do)."""
+    n = ranges.shape[1]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    linked = meas | np.swapaxes(meas, 1, 2)
+    m = linked.any(axis=2).sum(axis=1)
+    pairs = m * (m - 1)
+    return np.where(pairs > 0, linked.sum(axis=(1, 2)) / np.maximum(pairs, 1), 1.0)
+
+
+def _geodesic(d: np.ndarray) -> np.ndarray:
+    """d (n, n) with each unmeasured pair (nan) filled by its shortest path through measured
+    ones (nan where none): on a sparse range graph, a complete matrix for classical MDS whose
+    error (paths bend round) the fit then removes."""
+    from scipy.sparse.csgraph import shortest_path
+
+    w = np.where(np.isnan(d), 0.0, d)  # csgraph: 0 means no edge
+    np.fill_diagonal(w, 0.0)
+    g = shortest_path(w, method="D", directed=False)
+    return np.where(np.isnan(d), np.where(np.isfinite(g), g, np.nan), d)
+
+
+_APART = 1e4  # m between the starts of range-graph components that no range connects
+
+
+def _components_mds(g: np.ndarray) -> np.ndarray:
+    """Points (n, 3) from shortest-path distances g (n, n; nan between components): classical
+    MDS of each connected component on its own, the components set `_APART` apart along x
+    (nothing fixes where one lies relative to another; placed on top of each other, the fit
+    pulled them into each other and 110 honest links of two 12-drone clusters read long)."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(g)
+    _, label = connected_components(np.isfinite(g) & ~np.eye(n, dtype=bool), directed=False)
+    out = np.zeros((n, 3))
+    for k in range(label.max() + 1):
+        idx = np.flatnonzero(label == k)
+        out[idx] = _classical_mds(g[np.ix_(idx, idx)])
+        out[idx, 0] += k * _APART
+    return out
+
+
+def _mds(ranges: np.ndarray, geodesic: np.ndarray | None = None) -> np.ndarray:
     """A start for the shape (T, n, 3): classical MDS of the symmetrised ranges of the largest
     set of drones found (greedily) with every pair measured, then the others one by one by
     closed-form multilateration from 4 or more placed drones they range with (those that
-    never have 4 stay at the origin)."""
+    never have 4 stay at the origin). Trials that ``geodesic`` (T,) marks (a sparse range
+    graph, `sparse_graph`) instead fill unmeasured pairs by shortest paths (`_geodesic`) and
+    take each connected component's MDS (`_components_mds`): from the few drones that all
+    range each other, multilateration strays into folds."""
     T, n, _ = ranges.shape
     sym = _both_ways(ranges)
     sym[:, np.arange(n), np.arange(n)] = 0.0
     x = np.zeros((T, n, 3))
     for t in range(T):
         d = sym[t]
+        if geodesic is not None and geodesic[t]:
+            x[t] = _components_mds(_geodesic(d))
+            continue
         gaps = np.isnan(d)
         np.fill_diagonal(gaps, False)
         core = np.ones(n, dtype=bool)
@@ -283,7 +345,8 @@ def screen(
     # one-sided robust loss and drop the ranges reading long
     base = (meas & ~dropped & ~tampering[:, :, None]).astype(float)
     linked = (base > 0) | (np.swapaxes(base, 1, 2) > 0)
-    x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan)), ranges, base, sigma)
+    sparse = sparse_graph(ranges)
+    x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan), sparse), ranges, base, sigma)
     z = _long_z(x, ranges, base, sigma)
     long_ = np.zeros((T, n, n), dtype=bool)
     enlarged = np.zeros((T, n), dtype=bool)
@@ -346,4 +409,8 @@ def range_shape(ranges: np.ndarray, use: np.ndarray, sigma: float) -> np.ndarray
     multilateration, then Levenberg-Marquardt on the ranges ``use`` (T, n, n) marks, each
     with noise ``sigma`` (m) (the fit `screen` makes). A drone with fewer than 4 placed
     drones to range with stays at the origin."""
-    return _fit(_mds(np.where(use, ranges, np.nan)), ranges, use.astype(float), sigma)
+    # the ranges a detector sees are screened already: a graph the screening left gaps in
+    # (NLOS) keeps its start; only a sparse one (at most SPARSE_SHARE of its pairs ranged)
+    # takes the shortest-path start
+    start = _mds(np.where(use, ranges, np.nan), linked_share(ranges) <= SPARSE_SHARE)
+    return _fit(start, ranges, use.astype(float), sigma)

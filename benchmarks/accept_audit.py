@@ -40,6 +40,7 @@ from swarmraft.sim.scenario import Scenario, shipped_scenarios
 
 MODES = ("move", "clear", "accuse", "censor")
 LIE_AT_S = 3.0
+START_DELAY_S = 25.0  # lying-net, loss-net: seconds from launch to step 0 at least
 
 
 def lying_scenario(mode: str, n: int, seed: int) -> dict:
@@ -87,6 +88,7 @@ def lying(mode: str, n: int, seed: int) -> dict:
 
 def launched(data: dict, folder: Path):  # noqa: ANN201 (a MissionLog)
     """Scenario ``data`` run as processes on 127.0.0.1 (as `swarmraft launch`), its log."""
+    from swarmraft.net.launch import default_start_delay_s
     from swarmraft.net.localswarm import LocalSwarm
     from swarmraft.net.results import launch_log
     from swarmraft.sim.sensing import ScenarioWorld
@@ -94,7 +96,10 @@ def launched(data: dict, folder: Path):  # noqa: ANN201 (a MissionLog)
     file = folder / "scenario.toml"
     file.write_text(toml_text(data))
     sc = Scenario(**data)
-    run = LocalSwarm(sc, file, folder / "run", say=lambda _line: None)
+    # step 0 after every process is up: launch's default (3 s + 2.5 s per drone per core)
+    # is too short on a loaded machine, and an 8 s mission then ends before anyone leads
+    delay = max(default_start_delay_s(sc.drones), START_DELAY_S)
+    run = LocalSwarm(sc, file, folder / "run", start_delay_s=delay, say=lambda _line: None)
     run.prepare()
     run.run()
     return launch_log(ScenarioWorld.build(sc), run.nodes_dir, run.start_unix_s, run.events, run.kills)

@@ -182,15 +182,11 @@ def _mds(ranges: np.ndarray, geodesic: np.ndarray | None = None) -> np.ndarray:
     return x
 
 
-def _fit(
-    x: np.ndarray, ranges: np.ndarray, weight: np.ndarray, sigma: float, reduced: bool = False
-) -> np.ndarray:
-    """The shape (T, n, 3) fitting the weighted ranges, from x (its gauge held by x itself).
-    ``reduced``: by Cholesky (`weighted_gauss_newton`'s reduced solve), for a fit that only
-    decides whether something reads long."""
+def _fit(x: np.ndarray, ranges: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """The shape (T, n, 3) fitting the weighted ranges, from x (its gauge held by x itself)."""
     T, n, _ = x.shape
     return weighted_gauss_newton(
-        x, x, ranges, np.ones((T, n)), weight, _LOOSE * np.eye(3), sigma, iters=30, tol=1e-5, reduced=reduced
+        x, x, ranges, np.ones((T, n)), weight, _LOOSE * np.eye(3), sigma, iters=30, tol=1e-5
     )
 
 
@@ -350,18 +346,13 @@ def screen(
     base = (meas & ~dropped & ~tampering[:, :, None]).astype(float)
     linked = (base > 0) | (np.swapaxes(base, 1, 2) > 0)
     sparse = sparse_graph(ranges)
-    start = _mds(np.where((base > 0) | ~off, ranges, np.nan), sparse)
-    # whether anything reads long, from a fit by Cholesky (about half the cost of LU; most
-    # snapshots stop here, unchanged); the snapshots that go on are fitted again by the exact
-    # solve, whose shape the corrections below are made from
-    x = _fit(start, ranges, base, sigma, reduced=True)
+    x = _fit(_mds(np.where((base > 0) | ~off, ranges, np.nan), sparse), ranges, base, sigma)
     z = _long_z(x, ranges, base, sigma)
     long_ = np.zeros((T, n, n), dtype=bool)
     enlarged = np.zeros((T, n), dtype=bool)
     delta = np.zeros((T, n))
     rows = np.flatnonzero((z.max(axis=(1, 2)) > k) | dropped.any(axis=(1, 2)))
     if rows.size:
-        x[rows] = _fit(start[rows], ranges[rows], base[rows], sigma)
         loose = both[rows] & (gap[rows] > min(k, K_LOW) * np.sqrt(2) * sigma) & ~culprit[rows]
         dropped[rows] |= loose
         base[rows] = np.where(loose, 0.0, base[rows])

@@ -71,7 +71,7 @@ class DriftModel:
 @lru_cache(maxsize=64)
 def _chi2_isf(p: float, dof: int) -> float:
     """scipy's chi-square quantile, remembered: a step's test asks for the same two each time,
-    and scipy.stats spends about 0.1 ms a call in argument checks (5 % of a voter's re-run)."""
+    and scipy.stats spends about 0.06 ms a call on it (measured: 0.062 ms; remembered 0.0002 ms)."""
     return float(chi2.isf(p, dof))
 
 

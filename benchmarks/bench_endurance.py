@@ -18,7 +18,11 @@ whole flight before it starts, every page written (resident) from the start: the
 1-hour figure already; the first line gives their size (``preallocated``). At the end: each
 measure's growth from 1 h to the last sample, in total and per hour.
 
-Measured (2026-11-28): ``PYTHONPATH=src .venv/bin/python benchmarks/bench_endurance.py --hours 2
+Measured (2026-12-01, commit ec45e2c): ``--hours 10 --sample-h 0.5 --json FILE``, niced beside
+other work, 7,286 s of wall time: peak RSS 1778.6 MB at 1 h and at 10 h (+0.0 %), SQLite 137.09
+and 138.02 MB (+0.7 %): within the target.
+
+Earlier (2026-11-28): ``PYTHONPATH=src .venv/bin/python benchmarks/bench_endurance.py --hours 2
 --sample-h 0.1 --json FILE``, started 01:28 UTC (stepping from 01:42) at load average 27 (13-28
 during the run: 2 cores shared with other sessions); the 2 h world took 840 s to build, then
 75-1150 s of wall time per 0.1 simulated hour; stopped for the session's report after the

@@ -265,8 +265,8 @@ class SwarmDrone:
     def verify_step(self, step: int, term: int) -> StepRecord | None:
         """The leader's verdict for a step from the reports it holds (None if it has none,
         or the step is already decided: applied, or verified here before), with its evidence
-        (unsigned: see `seal`). A step is verified once: a report arriving after that is not
-        kept (`receive`), so no second record of the step carries only the late ones."""
+        (unsigned: see `seal`). A step is verified once: a report arriving after that (which
+        `receive` holds until the next verification) makes no second record of the step."""
         reports = self.inbox.pop(step, {})
         for old in [k for k in self.inbox if k < step]:
             del self.inbox[old]

@@ -171,10 +171,13 @@ class LiveSession:
             self.say.print(f"wrote {self.record_to}", soft_wrap=True)
         if self.server is None:
             return
+        from swarmraft.viz.live import ctrl_c_raises
+
         try:
-            if self.linger is None:
-                self.say.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
-            self.server.wait(self.linger)
+            with ctrl_c_raises():  # before the line that says Ctrl-C works: none is lost between
+                if self.linger is None:
+                    self.say.print(f"the viewer stays up at {self.server.url} until Ctrl-C", soft_wrap=True)
+                self.server.wait(self.linger)
         except KeyboardInterrupt:
             pass
         finally:
@@ -202,12 +205,15 @@ def view(rrd: Path, port: int) -> None:
     vl.require_rerun("swarmraft view")
     server = vl.ViewerServer(port=port, rrd=rrd)
     server.start()
-    console.print(f"viewing {rrd}: {server.url}", soft_wrap=True)
-    console.print("Ctrl-C to stop")
     try:
-        server.wait()
+        with vl.ctrl_c_raises():  # before the line that says Ctrl-C works: none is lost between
+            console.print(f"viewing {rrd}: {server.url}", soft_wrap=True)
+            console.print("Ctrl-C to stop")
+            server.wait()
     except KeyboardInterrupt:
         pass
+    finally:
+        server.stop()
 
 
 class FollowLaunch:

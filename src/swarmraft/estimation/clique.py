@@ -48,6 +48,7 @@ from swarmraft.estimation.links import SPARSE_SHARE, linked_share
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.paper import report_distances
 from swarmraft.estimation.registry import register
+from swarmraft.estimation.rivals import larger_rivals
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 _CANDIDATE_FLOATS = 4_000_000  # ranges of the candidates tested at once (32 MB)
@@ -144,6 +145,7 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
     for k, c in enumerate(c for cs in cands for c in cs):
         masks[k, list(c)] = True
     passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
+    worst = np.zeros(owner.size, dtype=int)  # each candidate's worst-fitting GNSS report
     x = np.zeros((owner.size, n, 3))
     # in groups of at most _CANDIDATE_FLOATS of ranges (each verdict is its own snapshot's,
     # so the grouping changes nothing): 1000 candidates of 256 drones would copy 0.5 GB of
@@ -155,6 +157,11 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         x[g] = joint_estimate(rep, rng, masks[g], noise.gnss_cov, noise.range_sigma)
         _, gnss_q, total[g], dof = residual_statistics(x[g], rep, rng, masks[g], noise)
         passed[g] = tests_pass(gnss_q, total[g], dof, masks[g], p.p_fa)
+        worst[g] = np.argmax(np.where(masks[g], gnss_q, -np.inf), axis=1)
+    owner, masks, passed, total, x = larger_rivals(
+        reported, ranges, noise, p.p_fa, f_max, owner, masks, passed, total, x, worst
+    )
+    cands = [[frozenset(np.flatnonzero(masks[k])) for k in np.flatnonzero(owner == t)] for t in range(T)]
     # On a sparse range graph (at most SPARSE_SHARE of the pairs ranged: drones out of each
     # other's range), where no candidate passes: exclusion inside the largest candidates
     # (`excluded_sets`). A dense graph keeps the maximal cliques as they are, also where the

@@ -72,6 +72,12 @@ class IntegrityParams(NoiseParams):
         description="re-solve each fault hypothesis (instead of linearising it) when at most this "
         "many drones are trusted",
     )
+    full_rivals_below: int = Field(
+        8,
+        ge=0,
+        description="search every rival trusted set (each trusted drone swapped for each flagged one, "
+        "and left out) when at most this many drones are trusted; above, swap the 2 worst-fitting",
+    )
     max_condition: float = Field(
         1e6, gt=1, description="degenerate above this ratio of a drone's largest to smallest variance"
     )
@@ -482,12 +488,15 @@ def finish(
     (default: those outside the trusted set).
 
     Two checks use the swaps of `rivals.rival_sets` (a flagged drone trusted instead of one
-    of the trusted drones that fit worst):
+    of the trusted drones that fit worst, or of any where at most ``full_rivals_below`` are
+    trusted):
 
     - repair: a set that fails its residual tests (exclusion could not undo a wrong
       exclusion) is replaced by its best passing swap, if one passes;
-    - rivals: a verdict that would be ``ok`` has a rival if a swap also passes the tests and
-      places some drone beyond its protection level: the data do not decide between them.
+    - rivals: a verdict that would be ``ok`` has a rival if a swap (or, where the search is
+      full and fewer than ``f_max`` drones are flagged, the set with one trusted drone left
+      out) also passes the tests and places some drone beyond its protection level: the data
+      do not decide between them.
       The verdict becomes ``unidentifiable``, estimated from the drones both sets trust,
       with only the drones outside both flagged."""
     prob = _Problem(
@@ -562,9 +571,17 @@ class _Problem:
         est = robust_estimate(rep, rng, tr, self.noise, pr, self.prior_sigma, starts, window=window)
         return est, assess(est, rep, rng, tr, self.noise, self.p, pr, self.prior_sigma)
 
-    def swaps(self, est: Estimate, a: Assessment, trusted: np.ndarray, rows: np.ndarray) -> Rivals:
+    def swaps(
+        self, est: Estimate, a: Assessment, trusted: np.ndarray, rows: np.ndarray, full: bool = False
+    ) -> Rivals:
         """Every flagged drone of the trials ``rows`` swapped in (`rivals.rival_sets`), ranked
-        by the GNSS residuals ``a`` already holds for ``est``."""
+        by the GNSS residuals ``a`` already holds for ``est``. With ``full`` (the rival check,
+        not the repair: a repair takes the best passing swap, and more swaps only offer it
+        more wrong sets) the full search where at most ``full_rivals_below`` drones are
+        trusted, with every trusted drone also left out there where fewer than ``f_max`` are
+        flagged."""
+        n = trusted.shape[1]
+        room = (~trusted).sum(axis=1) < resolve_f_max(self.p, n, "integrity")
         return rival_sets(
             est.x,
             self.reported,
@@ -576,6 +593,8 @@ class _Problem:
             self.prior,
             self.prior_sigma,
             gnss_q=a.gnss_q,
+            full=(trusted.sum(axis=1) <= self.p.full_rivals_below) & full,
+            drops=room,
         )
 
 
@@ -614,10 +633,10 @@ def _rival_rows(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict has a rival trusted set placing some drone beyond
     its protection level, and that rival (len(rows), n); None if there are none."""
-    rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
+    rows = np.flatnonzero(status == "ok")
     if not rows.size:
         return None
-    r = prob.swaps(est, a, trusted, rows)
+    r = prob.swaps(est, a, trusted, rows, full=True)
     d = r.x - a.positions[r.owner]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])

@@ -4,6 +4,7 @@ table, a summary and the numbers the figures need."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -445,15 +446,16 @@ def integrity_summary(log: MissionLog) -> dict[str, Any]:
     }
 
 
-def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> Iterator[dict[str, Any]]:
+    """steps.csv's rows (one per step and drone), one at a time: as a list they held about
+    1.5 KB of Python objects a row (54 MB for 64 drones over 60 s)."""
     misleading = misleading_information(log)
     wrong = wrong_partition(log)
     member = log.member
-    rows = []
     for k in range(len(log.t)):
         for i in range(log.scenario.drones):
             tr, rp, vf = log.truth[k, i], log.reported[k, i], log.verified[k, i]
-            rows.append(
+            yield (
                 {
                     "step": k,
                     "t": round(float(log.t[k]), 3),
@@ -491,7 +493,6 @@ def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> list[dict[str, 
                     **({MEMBER_COLUMN: member[k, i]} if member is not None else {}),
                 }
             )
-    return rows
 
 
 def run_and_write(sc: Scenario, out: Path, progress: Any = None, on_step: Any = None) -> MissionResult:

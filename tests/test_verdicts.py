@@ -3,9 +3,12 @@
 the per-trial GNC fix, which changed 4 `joint` verdicts of its 2-trial batches: one `alarm` at
 n = 17, f = 8 is now `ok` with exactly the attackers flagged, three have another trusted set):
 a change meant only to make a detector faster must leave its flags and statuses as they were
-and its positions and protection levels within 1e-9 m. A change meant to alter verdicts
-regenerates the file (the command is in benchmarks/verdict_equivalence.py) and says why in its
-commit."""
+and its positions and protection levels within 1e-5 m. (Floating point differs between
+machines: the file made on another machine and the same code on an AMD EPYC differed by up
+to 8e-7 m in 15 of its 315 arrays, flags and statuses the same; 1e-9 m failed there.) A change
+meant to alter verdicts regenerates the file (the command is in
+benchmarks/verdict_equivalence.py) and says why in its commit: regenerated on 2026-12-02 for
+the full rival search at (9, 4), which made one `clique` verdict of the file unidentifiable."""
 
 import sys
 from pathlib import Path
@@ -24,4 +27,4 @@ def test_verdicts_are_those_of_the_reference():
     assert len(ref) == len(new) == 315
     statuses = np.concatenate([v for k, v in ref.items() if k.endswith("/status")])
     assert {"ok", "alarm", "degenerate"} <= set(statuses.tolist())  # the cells are not all one kind
-    assert compare(ref, new, tol=1e-9) == []
+    assert compare(ref, new, tol=1e-5) == []

@@ -30,7 +30,10 @@ ok verdicts 25-128 m off in 4-5 trials per detector, every one of these kinds):
   the detector flagged. With 5 honest drones near a plane, a spoofed drone whose report lies
   near the mirror image of its true position passes every test when trusted and carries the
   drones it anchors to their mirror images; the set without it, one drone smaller, explains
-  the data as well, on the other side.
+  the data as well, on the other side. Asking for one attacker more, such a rival counts
+  only if it fits the data it uses better than the chosen estimate by the 3-dof chi-square
+  quantile at ``p_fa`` (a likelihood-ratio test); a full-search swap must fit within the
+  1-dof quantile of it.
 
 At n = 9, f = 4 with 4 drones flagged that is 40 solves (20 swaps from two starts) instead
 of 8.

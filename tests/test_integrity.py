@@ -382,7 +382,7 @@ def test_non_finite_noise_parameters_are_refused(det):
         detector_params(det, gnss_sigma=(1.5, float("nan")))
 
 
-@pytest.mark.parametrize("n, untrusted, missing", [(5, 0, 0.0), (9, 3, 0.2), (17, 6, 0.4)])
+@pytest.mark.parametrize("n, untrusted, missing", [(5, 0, 0.0), (9, 3, 0.2), (17, 6, 0.4), (30, 6, 0.75)])
 def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
     """The protection levels' n hypotheses (each drone's measurements left out) come from the
     all-in-view covariance by the Woodbury identity (`integrity._without_each`); they must be

@@ -122,55 +122,69 @@ class Terms:
 def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, np.ndarray]:
     """For every hypothesis j, the 3x3 diagonal blocks (T, j, n, 3, 3) of P_j = (J - A_j)^-1
     and the step P_j b_j (T, j, n, 3), from P0 = J^-1 by the Woodbury identity: with A_j =
-    U_j U_j' (3 GNSS columns and one column per range), P_j = P0 + X_j S_j^-1 X_j' where
-    X_j = P0 U_j and S_j = I - U_j' X_j. The columns of U_j touch two drones each, so X_j
-    is gathered from P0's columns and S_j is small (3 + n): about 4 n^4 operations for all
-    hypotheses instead of n inversions of 3n x 3n (18 n^4, and 10x slower in practice at
-    n = 64). Where S_j is nearly singular (drone j's measurements fix something nothing else
-    does) the identity loses precision; `assess` recomputes those hypotheses exactly.
+    U_j U_j' (3 GNSS columns and one column per range drone j measured), P_j = P0 + X_j
+    S_j^-1 X_j' where X_j = P0 U_j and S_j = I - U_j' X_j. The columns of U_j touch two drones
+    each, so X_j is gathered from P0's columns and S_j is small (3 + K, K the most ranges any
+    drone measured: n - 1 on a dense graph, a drone's neighbours on a sparse one): about
+    4 n^4 operations for all hypotheses on a dense graph instead of n inversions of 3n x 3n
+    (18 n^4, and 10x slower in practice at n = 64), and 3 n^2 (3 + K)^2 on a sparse one. Where
+    S_j is nearly singular (drone j's measurements fix something nothing else does) the
+    identity loses precision; `assess` recomputes those hypotheses exactly.
 
     The hypotheses go in groups of at most `_WOODBURY_FLOATS` of working arrays (about six
-    of T x N x (3 + n) floats per hypothesis: all at once, 2 GB at n = 256); up to n = 64
-    (with T = 1) that is all of them in one group."""
+    of T x N x (3 + K) floats per hypothesis: all at once, 2 GB at n = 256 on a dense
+    graph); up to n = 64 (with T = 1) that is all of them in one group."""
     T, N, _ = P0.shape
     n = N // 3
-    group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + n)))
+    measured = t.w > 0  # (T, j, k)
+    K = max(1, int(measured.sum(axis=2).max()))
+    # each hypothesis' ranges, measured ones first (stable: in order of k), padded with
+    # unmeasured ones (weight 0: a zero column adds an identity row to S_j, nothing to P_j)
+    nb = np.argsort(~measured, axis=2, kind="stable")[..., :K]  # (T, j, K)
+    group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + K)))
     if group >= n:
-        return _without_some(P0, b, t, 0, n)
+        return _without_some(P0, b, t, nb, 0, n)
     Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
     for lo in range(0, n, group):
         hi = min(n, lo + group)
-        Cj[:, lo:hi], dj[:, lo:hi] = _without_some(P0, b, t, lo, hi)
+        Cj[:, lo:hi], dj[:, lo:hi] = _without_some(P0, b, t, nb, lo, hi)
     return Cj, dj
 
 
 _WOODBURY_FLOATS = 32_000_000  # 256 MB: the working arrays of one group of hypotheses
 
 
-def _without_some(P0: np.ndarray, b: np.ndarray, t: Terms, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-    """`_without_each` for the hypotheses j in lo:hi: (T, hi - lo, n, 3, 3), (T, hi - lo, n, 3)."""
+def _without_some(
+    P0: np.ndarray, b: np.ndarray, t: Terms, nb: np.ndarray, lo: int, hi: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """`_without_each` for the hypotheses j in lo:hi, with the ranges ``nb`` (T, j, K) as
+    their columns: (T, hi - lo, n, 3, 3), (T, hi - lo, n, 3)."""
     T, N, _ = P0.shape
     n = N // 3
-    m = 3 + n
-    js = slice(lo, hi)
+    K = nb.shape[2]
+    m = 3 + K
     h = hi - lo
-    Gh = np.linalg.cholesky(t.G)  # G = Gh Gh'
-    sw = np.sqrt(t.w[:, js])  # (T, j, k)
-    u = t.u[:, js]  # (T, j, k, 3)
+    js = slice(lo, hi)
+    ti = np.arange(T)[:, None, None]
+    ji = np.arange(lo, hi)[None, :, None]
+    k = nb[:, js]  # (T, j, K)
+    sw = np.sqrt(t.w[ti, ji, k])  # (T, j, K)
+    u = t.u[ti, ji, k]  # (T, j, K, 3)
     gnss = t.gnss[:, js]
+    Gh = np.linalg.cholesky(t.G)  # G = Gh Gh'
     Pb = P0.reshape(T, N, n, 3).transpose(0, 2, 1, 3)  # (T, drone, N, 3): P0's columns by drone
-    uT = np.swapaxes(u, -1, -2)  # (T, j, 3, k)
     X = np.empty((T, h, N, m))
     X[..., :3] = (Pb[:, js] @ Gh) * gnss[:, :, None, None]
     # range j -> k: sqrt(w) (P0[:, j] - P0[:, k]) u_jk
-    own = Pb[:, js] @ uT  # (T, j, N, k): P0[:, j] u_jk
-    other = (Pb @ np.swapaxes(u, 1, 2).transpose(0, 1, 3, 2)).transpose(0, 3, 2, 1)  # P0[:, k] u_jk
+    own = Pb[:, js] @ np.swapaxes(u, -1, -2)  # (T, j, N, K): P0[:, j] u_jk
+    other = np.einsum("tjkNa,tjka->tjNk", Pb[ti, k], u)  # P0[:, k] u_jk
     X[..., 3:] = sw[:, :, None, :] * (own - other)
     Xr = X.reshape(T, h, n, 3, m)  # rows of X_j by drone and axis
     Xj = Xr[:, np.arange(h), np.arange(lo, hi)]  # (T, j, 3, m): drone j's own rows
+    Xk = Xr[ti, np.arange(h)[None, :, None], k]  # (T, j, K, 3, m): the rows of drone k
     UtX = np.empty((T, h, m, m))
     UtX[:, :, :3] = (Gh.T @ Xj) * gnss[:, :, None, None]
-    UtX[:, :, 3:] = sw[..., None] * (u @ Xj - (u[..., None] * Xr).sum(axis=-2))
+    UtX[:, :, 3:] = sw[..., None] * (u @ Xj - (u[..., None] * Xk).sum(axis=-2))
     S = np.eye(m) - UtX
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     Z = np.linalg.solve(S, np.swapaxes(X, -1, -2))  # (T, j, m, N): S_j^-1 X_j'

@@ -137,10 +137,26 @@ def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, 
     T, N, _ = P0.shape
     n = N // 3
     measured = t.w > 0  # (T, j, k)
-    K = max(1, int(measured.sum(axis=2).max()))
+    # K is each trial's own (trials with the same K go together), so a verdict's bits do not
+    # depend on the other trials of its batch
+    K_t = np.maximum(measured.sum(axis=2).max(axis=1), 1)  # (T,)
+    if (K_t == K_t[0]).all():
+        return _without_each_k(P0, b, t, int(K_t[0]))
+    Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
+    for K in np.unique(K_t):
+        rows = np.flatnonzero(K_t == K)
+        sub = Terms(t.gnss[rows], t.G, t.u[rows], t.w[rows])
+        Cj[rows], dj[rows] = _without_each_k(P0[rows], b[rows], sub, int(K))
+    return Cj, dj
+
+
+def _without_each_k(P0: np.ndarray, b: np.ndarray, t: Terms, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_without_each` for trials whose drones measured at most K ranges each."""
+    T, N, _ = P0.shape
+    n = N // 3
     # each hypothesis' ranges, measured ones first (stable: in order of k), padded with
     # unmeasured ones (weight 0: a zero column adds an identity row to S_j, nothing to P_j)
-    nb = np.argsort(~measured, axis=2, kind="stable")[..., :K]  # (T, j, K)
+    nb = np.argsort(~(t.w > 0), axis=2, kind="stable")[..., :K]  # (T, j, K)
     group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + K)))
     if group >= n:
         return _without_some(P0, b, t, nb, 0, n)

@@ -124,8 +124,8 @@ def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, 
     and the step P_j b_j (T, j, n, 3), from P0 = J^-1 by the Woodbury identity: with A_j =
     U_j U_j' (3 GNSS columns and one column per range drone j measured), P_j = P0 + X_j
     S_j^-1 X_j' where X_j = P0 U_j and S_j = I - U_j' X_j. The columns of U_j touch two drones
-    each, so X_j is gathered from P0's columns and S_j is small (3 + K, K the most ranges any
-    drone measured: n - 1 on a dense graph, a drone's neighbours on a sparse one): about
+    each, so X_j is gathered from P0's columns and S_j is small (3 + K, K the most ranges a
+    drone of the trial measured: n - 1 on a dense graph, its neighbours on a sparse one): about
     4 n^4 operations for all hypotheses on a dense graph instead of n inversions of 3n x 3n
     (18 n^4, and 10x slower in practice at n = 64), and 3 n^2 (3 + K)^2 on a sparse one. Where
     S_j is nearly singular (drone j's measurements fix something nothing else does) the

@@ -158,10 +158,12 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         _, gnss_q, total[g], dof = residual_statistics(x[g], rep, rng, masks[g], noise)
         passed[g] = tests_pass(gnss_q, total[g], dof, masks[g], p.p_fa)
         worst[g] = np.argmax(np.where(masks[g], gnss_q, -np.inf), axis=1)
+    found_before = owner.size
     owner, masks, passed, total, x = larger_rivals(
         reported, ranges, noise, p.p_fa, f_max, owner, masks, passed, total, x, worst
     )
-    cands = [[frozenset(np.flatnonzero(masks[k])) for k in np.flatnonzero(owner == t)] for t in range(T)]
+    if owner.size > found_before:  # the candidates, rivals added, in their new order
+        cands = [[frozenset(np.flatnonzero(masks[k])) for k in np.flatnonzero(owner == t)] for t in range(T)]
     # On a sparse range graph (at most SPARSE_SHARE of the pairs ranged: drones out of each
     # other's range), where no candidate passes: exclusion inside the largest candidates
     # (`excluded_sets`). A dense graph keeps the maximal cliques as they are, also where the

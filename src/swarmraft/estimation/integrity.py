@@ -610,8 +610,8 @@ class _Problem:
         more wrong sets) the full search where at most ``full_rivals_below`` drones are
         trusted, with every trusted drone also left out there where fewer than ``f_max`` are
         flagged."""
-        n = trusted.shape[1]
-        room = (~trusted).sum(axis=1) < resolve_f_max(self.p, n, "integrity")
+        full_rows = (trusted.sum(axis=1) <= self.p.full_rivals_below) & full
+        room = (~trusted).sum(axis=1) < resolve_f_max(self.p, trusted.shape[1], "integrity")
         return rival_sets(
             est.x,
             self.reported,
@@ -623,7 +623,7 @@ class _Problem:
             self.prior,
             self.prior_sigma,
             gnss_q=a.gnss_q,
-            full=(trusted.sum(axis=1) <= self.p.full_rivals_below) & full,
+            full=full_rows,
             drops=room,
         )
 
@@ -663,7 +663,9 @@ def _rival_rows(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict has a rival trusted set placing some drone beyond
     its protection level, and that rival (len(rows), n); None if there are none."""
-    rows = np.flatnonzero(status == "ok")
+    # a verdict with nothing flagged has rivals only by leaving a trusted drone out (full search)
+    small = trusted.sum(axis=1) <= prob.p.full_rivals_below
+    rows = np.flatnonzero((status == "ok") & ((~trusted).any(axis=1) | small))
     if not rows.size:
         return None
     r = prob.swaps(est, a, trusted, rows, full=True)

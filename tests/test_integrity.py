@@ -423,30 +423,6 @@ def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
     assert np.allclose(dj[ok], want_d[ok], rtol=1e-6, atol=1e-6 * np.abs(want_d[ok]).max())
 
 
-def test_hypotheses_in_groups_are_the_hypotheses_all_at_once(monkeypatch):
-    """At large n `_without_each` takes the hypotheses in groups (its working arrays would
-    be 2 GB at n = 256): the groups must give what all at once gives, uneven last group
-    included."""
-    from swarmraft.estimation import integrity as itg
-
-    rng = np.random.default_rng(5)
-    T, n = 2, 13
-    x = rng.uniform(0, 100, (T, n, 3))
-    reported = x + rng.normal(0, 2, x.shape)
-    ranges = true_distances(x) + rng.normal(0, 0.1, (T, n, n))
-    ranges[rng.random(ranges.shape) < 0.2] = np.nan
-    trusted = rng.random((T, n)) < 0.8
-    noise = NoiseModel(gnss_cov=gnss_covariance(1.5, 3.0), range_sigma=0.1)
-    J, b, terms = itg._hypothesis_information(x, reported, ranges, trusted, noise, np.ones((T, n), bool))
-    P0 = itg._inverse(J)
-    whole = itg._without_each(P0, b, terms)
-    monkeypatch.setattr(itg, "_WOODBURY_FLOATS", 6 * T * 3 * n * (3 + n) * 4)  # groups of 4: 4+4+4+1
-    grouped = itg._without_each(P0, b, terms)
-    for a, w in zip(grouped, whole, strict=True):
-        assert a.shape == w.shape
-        assert np.allclose(a, w, rtol=1e-12, atol=1e-12 * np.abs(w).max())
-
-
 def test_the_trusted_information_is_the_sum_of_each_hypothesis_information():
     """`_hypothesis_information` builds the trusted set's information J from measurement
     terms, without the n hypothesis matrices; `_hypothesis_matrix` builds one. Both must be

@@ -52,6 +52,7 @@ from swarmraft.estimation.noise import NoiseModel, NoiseParams
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+from swarmraft.estimation.woodbury import without_each
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
 _MEMORY_FLOATS = 4_000_000  # per batch of hypothesis matrices (32 MB)
@@ -121,95 +122,9 @@ class Terms:
 
 def _without_each(P0: np.ndarray, b: np.ndarray, t: Terms) -> tuple[np.ndarray, np.ndarray]:
     """For every hypothesis j, the 3x3 diagonal blocks (T, j, n, 3, 3) of P_j = (J - A_j)^-1
-    and the step P_j b_j (T, j, n, 3), from P0 = J^-1 by the Woodbury identity: with A_j =
-    U_j U_j' (3 GNSS columns and one column per range drone j measured), P_j = P0 + X_j
-    S_j^-1 X_j' where X_j = P0 U_j and S_j = I - U_j' X_j. The columns of U_j touch two drones
-    each, so X_j is gathered from P0's columns and S_j is small (3 + K, K the most ranges a
-    drone of the trial measured: n - 1 on a dense graph, its neighbours on a sparse one): about
-    4 n^4 operations for all hypotheses on a dense graph instead of n inversions of 3n x 3n
-    (18 n^4, and 10x slower in practice at n = 64), and 3 n^2 (3 + K)^2 on a sparse one. Where
-    S_j is nearly singular (drone j's measurements fix something nothing else does) the
-    identity loses precision; `assess` recomputes those hypotheses exactly.
-
-    The hypotheses go in groups of at most `_WOODBURY_FLOATS` of working arrays (about six
-    of T x N x (3 + K) floats per hypothesis: all at once, 2 GB at n = 256 on a dense
-    graph); up to n = 64 (with T = 1) that is all of them in one group."""
-    T, N, _ = P0.shape
-    n = N // 3
-    measured = t.w > 0  # (T, j, k)
-    # K is each trial's own (trials with the same K go together), so a verdict's bits do not
-    # depend on the other trials of its batch
-    K_t = np.maximum(measured.sum(axis=2).max(axis=1), 1)  # (T,)
-    if (K_t == K_t[0]).all():
-        return _without_each_k(P0, b, t, int(K_t[0]))
-    Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
-    for K in np.unique(K_t):
-        rows = np.flatnonzero(K_t == K)
-        sub = Terms(t.gnss[rows], t.G, t.u[rows], t.w[rows])
-        Cj[rows], dj[rows] = _without_each_k(P0[rows], b[rows], sub, int(K))
-    return Cj, dj
-
-
-def _without_each_k(P0: np.ndarray, b: np.ndarray, t: Terms, K: int) -> tuple[np.ndarray, np.ndarray]:
-    """`_without_each` for trials whose drones measured at most K ranges each."""
-    T, N, _ = P0.shape
-    n = N // 3
-    # each hypothesis' ranges, measured ones first (stable: in order of k), padded with
-    # unmeasured ones (weight 0: a zero column adds an identity row to S_j, nothing to P_j)
-    nb = np.argsort(~(t.w > 0), axis=2, kind="stable")[..., :K]  # (T, j, K)
-    group = max(1, _WOODBURY_FLOATS // (6 * T * N * (3 + K)))
-    if group >= n:
-        return _without_some(P0, b, t, nb, 0, n)
-    Cj, dj = np.empty((T, n, n, 3, 3)), np.empty((T, n, n, 3))
-    for lo in range(0, n, group):
-        hi = min(n, lo + group)
-        Cj[:, lo:hi], dj[:, lo:hi] = _without_some(P0, b, t, nb, lo, hi)
-    return Cj, dj
-
-
-_WOODBURY_FLOATS = 32_000_000  # 256 MB: the working arrays of one group of hypotheses
-
-
-def _without_some(
-    P0: np.ndarray, b: np.ndarray, t: Terms, nb: np.ndarray, lo: int, hi: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """`_without_each` for the hypotheses j in lo:hi, with the ranges ``nb`` (T, j, K) as
-    their columns: (T, hi - lo, n, 3, 3), (T, hi - lo, n, 3)."""
-    T, N, _ = P0.shape
-    n = N // 3
-    K = nb.shape[2]
-    m = 3 + K
-    h = hi - lo
-    js = slice(lo, hi)
-    ti = np.arange(T)[:, None, None]
-    ji = np.arange(lo, hi)[None, :, None]
-    k = nb[:, js]  # (T, j, K)
-    sw = np.sqrt(t.w[ti, ji, k])  # (T, j, K)
-    u = t.u[ti, ji, k]  # (T, j, K, 3)
-    gnss = t.gnss[:, js]
-    Gh = np.linalg.cholesky(t.G)  # G = Gh Gh'
-    Pb = P0.reshape(T, N, n, 3).transpose(0, 2, 1, 3)  # (T, drone, N, 3): P0's columns by drone
-    X = np.empty((T, h, N, m))
-    X[..., :3] = (Pb[:, js] @ Gh) * gnss[:, :, None, None]
-    # range j -> k: sqrt(w) (P0[:, j] - P0[:, k]) u_jk
-    own = Pb[:, js] @ np.swapaxes(u, -1, -2)  # (T, j, N, K): P0[:, j] u_jk
-    other = np.einsum("tjkNa,tjka->tjNk", Pb[ti, k], u)  # P0[:, k] u_jk
-    X[..., 3:] = sw[:, :, None, :] * (own - other)
-    Xr = X.reshape(T, h, n, 3, m)  # rows of X_j by drone and axis
-    Xj = Xr[:, np.arange(h), np.arange(lo, hi)]  # (T, j, 3, m): drone j's own rows
-    Xk = Xr[ti, np.arange(h)[None, :, None], k]  # (T, j, K, 3, m): the rows of drone k
-    UtX = np.empty((T, h, m, m))
-    UtX[:, :, :3] = (Gh.T @ Xj) * gnss[:, :, None, None]
-    UtX[:, :, 3:] = sw[..., None] * (u @ Xj - (u[..., None] * Xk).sum(axis=-2))
-    S = np.eye(m) - UtX
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
-    Z = np.linalg.solve(S, np.swapaxes(X, -1, -2))  # (T, j, m, N): S_j^-1 X_j'
-    Zr = Z.reshape(T, h, m, n, 3).transpose(0, 1, 3, 2, 4)  # (T, j, i, m, 3)
-    Cj = _blocks(P0)[:, None] + Xr @ Zr
-    bj = b[:, js, :, None]
-    P0b = (P0[:, None] @ bj)[..., 0]  # (T, j, N)
-    dj = P0b + (X @ (Z @ bj))[..., 0]
-    return Cj, dj.reshape(T, h, n, 3)
+    and the step P_j b_j (T, j, n, 3), from P0 = J^-1 by the Woodbury identity
+    (`woodbury.without_each`)."""
+    return without_each(P0, b, t.gnss, t.G, t.u, t.w)
 
 
 def _hypothesis_information(

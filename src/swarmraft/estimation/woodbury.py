@@ -1,0 +1,178 @@
+"""Every fault hypothesis of the protection levels from the all-in-view covariance, by the
+Woodbury identity (the numerical core of `integrity.assess`).
+
+Hypothesis j ("trusted drone j is faulty") leaves out drone j's GNSS report and the ranges
+it measured. Its information is A_j = U_j U_j' with 3 GNSS columns (G^1/2 on drone j's
+coordinates) and one column per range j measured to k (sqrt(w_jk) u_jk on drone j's
+coordinates, -sqrt(w_jk) u_jk on drone k's). With P0 = J^-1, the subset covariance is
+P_j = (J - A_j)^-1 = P0 + X_j S_j^-1 X_j' where X_j = P0 U_j (N x m, m = 3 + K) and
+S_j = I - U_j' X_j (m x m): one m x m system per hypothesis instead of inverting a 3n x 3n
+matrix. Only the 3x3 diagonal blocks of P_j and the step P_j b_j are kept.
+
+`without_each` is a numba kernel, trial by trial and hypothesis by hypothesis: the numpy
+version it replaced built every hypothesis' X at once (tens of MB at n = 64) and its many
+small array operations were most of the protection levels' time at n = 17 (1.0 ms of a
+5 ms step). A zero column (a range not measured) adds an identity row to S_j and nothing
+to P_j, so each trial takes its own K (the most ranges one of its drones measured) and a
+verdict's bits do not depend on the other trials of its batch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _lu_solve(S, m, B):  # pragma: no cover - compiled
+    """B (m, R) <- S[:m, :m]^-1 B by LU with partial pivoting, S overwritten. False where a
+    pivot is zero or not finite (the hypothesis is then left to `integrity.assess`)."""
+    R = B.shape[1]
+    for c in range(m):
+        p = c
+        big = abs(S[c, c])
+        for r in range(c + 1, m):
+            if abs(S[r, c]) > big:
+                big = abs(S[r, c])
+                p = r
+        if not (big > 0.0 and np.isfinite(big)):
+            return False
+        if p != c:
+            for q in range(m):
+                S[c, q], S[p, q] = S[p, q], S[c, q]
+            for q in range(R):
+                B[c, q], B[p, q] = B[p, q], B[c, q]
+        d = S[c, c]
+        for r in range(c + 1, m):
+            f = S[r, c] / d
+            if f != 0.0:
+                for q in range(c + 1, m):
+                    S[r, q] -= f * S[c, q]
+                for q in range(R):
+                    B[r, q] -= f * B[c, q]
+    for c in range(m - 1, -1, -1):
+        d = S[c, c]
+        for q in range(R):
+            v = B[c, q]
+            for r in range(c + 1, m):
+                v -= S[c, r] * B[r, q]
+            B[c, q] = v / d
+    return True
+
+
+@njit(cache=True)
+def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compiled
+    T, N, _ = P0.shape
+    n = N // 3
+    Kmax = nb.shape[2]
+    X = np.zeros((N, 3 + Kmax))
+    S = np.zeros((3 + Kmax, 3 + Kmax))
+    Z = np.zeros((3 + Kmax, N))
+    sw = np.zeros(Kmax)
+    P0b = np.zeros(N)
+    for t in range(T):
+        K = K_t[t]
+        m = 3 + K
+        for j in range(n):
+            g = gnss[t, j]
+            o = 3 * j
+            # X = P0 U_j: GNSS columns P0[:, j] Gh g, range columns sqrt(w) (P0[:, j] - P0[:, k]) u
+            for c in range(K):
+                sw[c] = np.sqrt(w[t, j, nb[t, j, c]])
+            for r in range(N):
+                for a in range(3):
+                    v = 0.0
+                    for q in range(3):
+                        v += P0[t, r, o + q] * Gh[q, a]
+                    X[r, a] = v * g
+                for c in range(K):
+                    k = nb[t, j, c]
+                    ok = 3 * k
+                    v = 0.0
+                    for q in range(3):
+                        v += (P0[t, r, o + q] - P0[t, r, ok + q]) * u[t, j, k, q]
+                    X[r, 3 + c] = sw[c] * v
+            # S = I - U_j' X (symmetrised)
+            for col in range(m):
+                for a in range(3):
+                    v = 0.0
+                    for q in range(3):
+                        v += Gh[q, a] * X[o + q, col]
+                    S[a, col] = -v * g
+                for c in range(K):
+                    k = nb[t, j, c]
+                    ok = 3 * k
+                    v = 0.0
+                    for q in range(3):
+                        v += u[t, j, k, q] * (X[o + q, col] - X[ok + q, col])
+                    S[3 + c, col] = -sw[c] * v
+            for a in range(m):
+                S[a, a] += 1.0
+                for c in range(a):
+                    s = 0.5 * (S[a, c] + S[c, a])
+                    S[a, c] = s
+                    S[c, a] = s
+            for q in range(m):  # Z = S^-1 X' (m, N)
+                for r in range(N):
+                    Z[q, r] = X[r, q]
+            if not _lu_solve(S, m, Z[:m]):
+                for i in range(n):
+                    Cj[t, j, i] = np.nan
+                for r in range(N):
+                    dj[t, j, r] = np.nan
+                continue
+            # blocks of P_j: P0's plus X_i Z_i
+            for i in range(n):
+                for a in range(3):
+                    for c in range(3):
+                        v = P0[t, 3 * i + a, 3 * i + c]
+                        for q in range(m):
+                            v += X[3 * i + a, q] * Z[q, 3 * i + c]
+                        Cj[t, j, i, a, c] = v
+            # step: P0 b_j + X (Z b_j)
+            for r in range(N):
+                v = 0.0
+                for q in range(N):
+                    v += P0[t, r, q] * b[t, j, q]
+                P0b[r] = v
+            for q in range(m):
+                v = 0.0
+                for r in range(N):
+                    v += Z[q, r] * b[t, j, r]
+                for r in range(N):
+                    P0b[r] += X[r, q] * v
+            for r in range(N):
+                dj[t, j, r] = P0b[r]
+
+
+def without_each(
+    P0: np.ndarray, b: np.ndarray, gnss: np.ndarray, G: np.ndarray, u: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For every hypothesis j, the 3x3 diagonal blocks (T, j, n, 3, 3) of P_j = (J - A_j)^-1
+    and the step P_j b_j (T, j, n, 3), from P0 = J^-1 (T, 3n, 3n), the gradients b (T, n, 3n)
+    of what each hypothesis leaves out, and its terms: GNSS weight ``gnss`` (T, n) of
+    information ``G`` (3, 3), unit vectors ``u`` (T, j, k, 3) and weights ``w`` (T, j, k)
+    of its ranges (0: not measured). Where S_j is nearly singular (drone j's measurements
+    fix something nothing else does) the identity loses precision; `integrity.assess`
+    recomputes those hypotheses exactly."""
+    T, N, _ = P0.shape
+    n = N // 3
+    measured = w > 0
+    K_t = np.maximum(measured.sum(axis=2).max(axis=1), 1).astype(np.int64)  # (T,)
+    # each hypothesis' ranges, measured ones first (stable: in order of k)
+    nb = np.ascontiguousarray(np.argsort(~measured, axis=2, kind="stable")[..., : int(K_t.max())])
+    Cj = np.empty((T, n, n, 3, 3))
+    dj = np.empty((T, n, N))
+    _kernel(
+        np.ascontiguousarray(P0, float),
+        np.ascontiguousarray(b, float),
+        np.ascontiguousarray(gnss, float),
+        np.linalg.cholesky(G),
+        np.ascontiguousarray(u, float),
+        np.ascontiguousarray(w, float),
+        nb.astype(np.int64),
+        K_t,
+        Cj,
+        dj,
+    )
+    return Cj, dj.reshape(T, n, n, 3)

@@ -145,11 +145,6 @@ def test_prior_resolves_the_three_anchor_mirror(det):
     assert v.status == "degenerate" and np.isinf(v.hpl[0])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="joint's re-inclusion test whitens a flagged drone's report minus where the others put "
-    "it by the GNSS covariance alone (estimation/gnc.py; the change is proposed, not applied)",
-)
 def test_joint_does_not_flag_an_honest_drone_whose_inclusion_passes_the_residual_tests():
     # leader-crash-under-attack seed 4, step 38 (3.8 s, before any spoof): honest drone 7's
     # GNSS is 8.8 m off upwards (2.9 sigma). Flagged, it was committed as a wrong partition

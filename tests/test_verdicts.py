@@ -8,7 +8,10 @@ machines: the file made on another machine and the same code on an AMD EPYC diff
 to 8e-7 m in 15 of its 315 arrays, flags and statuses the same; 1e-9 m failed there.) A change
 meant to alter verdicts regenerates the file (the command is in
 benchmarks/verdict_equivalence.py) and says why in its commit: regenerated on 2026-12-02 for
-the full rival search at (9, 4), which made one `clique` verdict of the file unidentifiable."""
+the full rival search at (9, 4), which made one `clique` verdict of the file unidentifiable;
+again for `joint`'s re-inclusion test whitened by the GNSS plus the estimate's covariance and
+the drop margin of 3 (8 `joint` arrays: trusted sets of 8 trials, one `line` (9, 4) trial's
+flags; every status the same)."""
 
 import sys
 from pathlib import Path

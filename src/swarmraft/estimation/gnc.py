@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from swarmraft.estimation.bounds import CHI2_3DOF_999
+from swarmraft.estimation.bounds import CHI2_3DOF_999, swarm_information
 from swarmraft.estimation.clique import CliqueParams, clique_detector
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max, status_rank
 from swarmraft.estimation.joint import (
@@ -31,6 +31,40 @@ from swarmraft.estimation.joint import (
 from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whitener
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+
+
+def placement_covariance(
+    x: np.ndarray, trusted: np.ndarray, measured: np.ndarray, noise: NoiseModel
+) -> np.ndarray:
+    """The 3x3 covariance blocks (T, n, 3, 3) of positions estimated at x from the GNSS of the
+    ``trusted`` drones and the ranges ``measured`` (T, n, n): the swarm bound's blocks, nan in
+    a trial whose information is not positive definite by a margin (a Cholesky pivot below
+    1e-12 of its diagonal entry: some position is not fixed). Cholesky decides that, where the
+    bound's condition number (an SVD, 0.37 ms a 17-drone step) was most of the cost."""
+    J = swarm_information(x, trusted, measured, noise.gnss_cov, noise.range_sigma)
+    T, N, _ = J.shape
+    fixed = np.zeros(T, dtype=bool)
+    try:
+        L = np.linalg.cholesky(J)
+        fixed[:] = True
+    except np.linalg.LinAlgError:  # some trial is not positive definite: each on its own
+        L = np.zeros_like(J)
+        for t in range(T):
+            try:
+                L[t] = np.linalg.cholesky(J[t])
+                fixed[t] = True
+            except np.linalg.LinAlgError:
+                pass
+    diag = np.diagonal(J, axis1=1, axis2=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fixed &= (np.diagonal(L, axis1=1, axis2=2) ** 2 >= 1e-12 * diag).all(axis=1)
+    n = N // 3
+    out = np.full((T, n, 3, 3), np.nan)
+    if fixed.any():
+        P = np.linalg.inv(J[fixed]).reshape(-1, n, 3, n, 3)
+        idx = np.arange(n)
+        out[fixed] = P[:, idx, :, idx, :].transpose(1, 0, 2, 3)
+    return out
 
 
 def geman_mcclure_weights(r2: np.ndarray, c2: float, mu: float) -> np.ndarray:
@@ -195,11 +229,25 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
     faulty = (np.einsum("tni,tni->tn", rg, rg) > p.flag_chi2) | bad_ranges
     # Re-inclusion: estimate with the flagged drones distrusted; a flagged drone whose report
     # agrees with where the others' ranges put it was flagged wrongly (GNC can settle on a
-    # wrong partition when many reports are spoofed).
+    # wrong partition when many reports are spoofed). Agrees: its report minus that estimate,
+    # whitened by its GNSS covariance plus the covariance of the estimate (its block of the
+    # swarm bound with the ranges that estimate used: not its GNSS, not the ranges the flagged
+    # drones measured), within flag_chi2. Whitened by the GNSS covariance alone,
+    # the uncertainty of where the others put it counted as the drone's own error: honest drone
+    # 7 of leader-crash-under-attack seed 4, 8.8 m up (2.9 sigma) at 3.8 s, stayed flagged
+    # (17.7 against 16.3; 14.9 whitened by both) though the set with it passed its tests.
     for _ in range(2):
         x = joint_estimate(reported, ranges, ~faulty, noise.gnss_cov, noise.range_sigma)
-        rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)
-        back = faulty & ~bad_ranges & (np.einsum("tni,tni->tn", rg, rg) <= p.flag_chi2)
+        rows = np.flatnonzero((faulty & ~bad_ranges).any(axis=1))
+        if not rows.size:
+            break
+        tr = ~faulty[rows]
+        C = placement_covariance(x[rows], tr, own[rows] & tr[:, :, None], noise)
+        r = reported[rows] - x[rows]
+        with np.errstate(invalid="ignore"):
+            q = np.einsum("tni,tni->tn", r, np.linalg.solve(noise.gnss_cov + C, r[..., None])[..., 0])
+        back = np.zeros_like(faulty)
+        back[rows] = faulty[rows] & ~bad_ranges[rows] & (q <= p.flag_chi2)  # nan (unfixed) stays flagged
         if not back.any():
             break
         faulty &= ~back

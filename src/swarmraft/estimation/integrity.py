@@ -79,6 +79,13 @@ class IntegrityParams(NoiseParams):
         description="search every rival trusted set (each trusted drone swapped for each flagged one, "
         "and left out) when at most this many drones are trusted; above, swap the 2 worst-fitting",
     )
+    rival_drop_margin: float = Field(
+        3.0,
+        ge=0,
+        description="a rival that leaves one more trusted drone out counts when it fits the data it uses "
+        "better than the chosen estimate by more than this (chi-square; 3: what leaving out an honest "
+        "drone's 3-dof report gains on average)",
+    )
     max_condition: float = Field(
         1e6, gt=1, description="degenerate above this ratio of a drone's largest to smallest variance"
     )
@@ -540,6 +547,7 @@ class _Problem:
             gnss_q=a.gnss_q,
             full=full_rows,
             drops=room,
+            drop_margin=self.p.rival_drop_margin,
         )
 
 

@@ -62,6 +62,8 @@ def _lu_solve(S, m, B):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compiled
+    """`without_each` into Cj (T, n, n, 3, 3) and dj (T, n, 3n): hypothesis j's columns are
+    its GNSS (Gh = G^1/2, weight gnss[t, j]) and its ranges to the drones nb[t, j, :K_t[t]]."""
     T, N, _ = P0.shape
     n = N // 3
     Kmax = nb.shape[2]

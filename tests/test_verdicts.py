@@ -11,7 +11,8 @@ benchmarks/verdict_equivalence.py) and says why in its commit: regenerated on 20
 the full rival search at (9, 4), which made one `clique` verdict of the file unidentifiable;
 again for `joint`'s re-inclusion test whitened by the GNSS plus the estimate's covariance and
 the drop margin of 3 (8 `joint` arrays: trusted sets of 8 trials, one `line` (9, 4) trial's
-flags; every status the same)."""
+flags; every status the same), and once more when that test fell back to the GNSS-only one
+where the placement is not fixed (against the file before: 8 `joint` arrays, statuses the same)."""
 
 import sys
 from pathlib import Path

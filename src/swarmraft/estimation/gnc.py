@@ -246,8 +246,14 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         r = reported[rows] - x[rows]
         with np.errstate(invalid="ignore"):
             q = np.einsum("tni,tni->tn", r, np.linalg.solve(noise.gnss_cov + C, r[..., None])[..., 0])
+        # where the others do not fix every flagged drone (GNC flagged most of the swarm, say)
+        # the placement has no covariance: the GNSS-only test, as before. Keeping those drones
+        # flagged instead turned 50 of (9, 4)'s 10,000 ok verdicts into alarms accusing 3-4
+        # honest drones (false positives 1.2 -> 1.7 %)
+        rg_only = np.einsum("tni,tni->tn", r, np.linalg.solve(noise.gnss_cov, r[..., None])[..., 0])
+        q = np.where(np.isfinite(q), q, rg_only)
         back = np.zeros_like(faulty)
-        back[rows] = faulty[rows] & ~bad_ranges[rows] & (q <= p.flag_chi2)  # nan (unfixed) stays flagged
+        back[rows] = faulty[rows] & ~bad_ranges[rows] & (q <= p.flag_chi2)
         if not back.any():
             break
         faulty &= ~back

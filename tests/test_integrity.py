@@ -200,7 +200,7 @@ def test_a_rival_with_one_more_drone_out_must_fit_better():
     """(7, 1), realistic: with 6 trusted drones, leaving one out often lets it (and the flagged
     drone) sit at a mirror image that still passes the tests; without the likelihood-ratio
     margin 12 % of these verdicts became unidentifiable (0.5 % before the drops), though
-    none was more than 20 m off (with the margin of 3: 2.6 % of 10,000)."""
+    none was more than 20 m off (with the margin of 3: 2.1 % of 10,000)."""
     truth, rep, rng_, _ = _realistic_trials(7, 1, range(200))
     v = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1), "joint")
     assert (v.status == "unidentifiable").mean() <= 0.03, collections.Counter(v.status)

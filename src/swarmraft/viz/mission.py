@@ -273,7 +273,8 @@ def swarm_map(
 ) -> None:
     """One step's swarm seen from above on ``ax`` (each array one row per drone: positions
     (n, 3), flags (n,)): truth, reports, committed positions; each report tied to its drone's
-    true position by a line (red for a spoofed drone), flagged drones ringed, crashed drones
+    true position by a line (red for a spoofed drone), flagged drones ringed (at their report,
+    dashed, where the record gives no position), crashed drones
     (no report) and jammed drones (reporting their INS) marked, the leader (``leader``, a
     1-based drone id; 0 = none) marked with a black diamond; drone numbers placed so that they
     do not overlap. ``limits`` ((xmin, xmax), (ymin, ymax)), m, fix the view; by default it fits
@@ -294,10 +295,19 @@ def swarm_map(
     ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
     ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
     ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
-    f = faulty & np.isfinite(vf).all(axis=1)
+    placed = np.isfinite(vf).all(axis=1)
+    f = faulty & placed
     if f.any():
         ax.scatter(
             vf[f, 0], vf[f, 1], s=260, facecolors="none", edgecolors="tab:blue", label="flagged", zorder=4
+        )
+    # a flagged drone the record gives no position (undetermined: nan) is ringed at its report,
+    # dashed, so a frame still shows every flag its record carries
+    g = faulty & ~placed & np.isfinite(rp).all(axis=1)
+    if g.any():
+        ax.scatter(
+            rp[g, 0], rp[g, 1], s=260, facecolors="none", edgecolors="tab:blue", linestyles="--",
+            label="flagged, no verified position (ringed at its report)", zorder=4,
         )
     dead = ~alive
     if dead.any():

@@ -306,8 +306,14 @@ def swarm_map(
     g = faulty & ~placed & np.isfinite(rp).all(axis=1)
     if g.any():
         ax.scatter(
-            rp[g, 0], rp[g, 1], s=260, facecolors="none", edgecolors="tab:blue", linestyles="--",
-            label="flagged, no verified position (ringed at its report)", zorder=4,
+            rp[g, 0],
+            rp[g, 1],
+            s=260,
+            facecolors="none",
+            edgecolors="tab:blue",
+            linestyles="--",
+            label="flagged, no verified position (ringed at its report)",
+            zorder=4,
         )
     dead = ~alive
     if dead.any():

@@ -229,18 +229,32 @@ def _cholesky(S, m):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _cholesky_solve(L, m, y):  # pragma: no cover - compiled
-    """y[:m] <- (L L')^-1 y[:m] with L from `_cholesky`."""
+def _cholesky_solve_columns(L, m, B):  # pragma: no cover - compiled
+    """B[:m] <- (L L')^-1 B[:m] for every column of B (m or more rows, R columns), with L from
+    `_cholesky`; row by row, so the columns go through the cache together."""
+    R = B.shape[1]
     for i in range(m):
-        v = y[i]
         for p in range(i):
-            v -= L[i, p] * y[p]
-        y[i] = v / L[i, i]
+            f = L[i, p]
+            for q in range(R):
+                B[i, q] -= f * B[p, q]
+        d = L[i, i]
+        for q in range(R):
+            B[i, q] /= d
     for i in range(m - 1, -1, -1):
-        v = y[i]
         for p in range(i + 1, m):
-            v -= L[p, i] * y[p]
-        y[i] = v / L[i, i]
+            f = L[p, i]
+            for q in range(R):
+                B[i, q] -= f * B[p, q]
+        d = L[i, i]
+        for q in range(R):
+            B[i, q] /= d
+
+
+@njit(cache=True)
+def _cholesky_solve(L, m, y):  # pragma: no cover - compiled
+    """y[:m] <- (L L')^-1 y[:m] with L from `_cholesky` (`_cholesky_solve_columns`, one column)."""
+    _cholesky_solve_columns(L, m, y[:m].reshape((m, 1)))
 
 
 @njit(cache=True)

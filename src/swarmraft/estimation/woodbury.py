@@ -9,7 +9,8 @@ P_j = (J - A_j)^-1 = P0 + X_j S_j^-1 X_j' where X_j = P0 U_j (N x m, m = 3 + K) 
 S_j = I - U_j' X_j (m x m): one m x m system per hypothesis instead of inverting a 3n x 3n
 matrix. Only the 3x3 diagonal blocks of P_j and the step P_j b_j are kept.
 
-`without_each` is a numba kernel, trial by trial and hypothesis by hypothesis: the numpy
+`without_each` is a numba kernel, trial by trial and hypothesis by hypothesis (S_j by
+`joint`'s Cholesky, which the reduced Levenberg-Marquardt solve uses too): the numpy
 version it replaced built every hypothesis' X at once (tens of MB at n = 64) and its many
 small array operations were most of the protection levels' time at n = 17 (1.0 ms of a
 5 ms step). A zero column (a range not measured) adds an identity row to S_j and nothing
@@ -22,42 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-
-@njit(cache=True)
-def _lu_solve(S, m, B):  # pragma: no cover - compiled
-    """B (m, R) <- S[:m, :m]^-1 B by LU with partial pivoting, S overwritten. False where a
-    pivot is zero or not finite (the hypothesis is then left to `integrity.assess`)."""
-    R = B.shape[1]
-    for c in range(m):
-        p = c
-        big = abs(S[c, c])
-        for r in range(c + 1, m):
-            if abs(S[r, c]) > big:
-                big = abs(S[r, c])
-                p = r
-        if not (big > 0.0 and np.isfinite(big)):
-            return False
-        if p != c:
-            for q in range(m):
-                S[c, q], S[p, q] = S[p, q], S[c, q]
-            for q in range(R):
-                B[c, q], B[p, q] = B[p, q], B[c, q]
-        d = S[c, c]
-        for r in range(c + 1, m):
-            f = S[r, c] / d
-            if f != 0.0:
-                for q in range(c + 1, m):
-                    S[r, q] -= f * S[c, q]
-                for q in range(R):
-                    B[r, q] -= f * B[c, q]
-    for c in range(m - 1, -1, -1):
-        d = S[c, c]
-        for q in range(R):
-            v = B[c, q]
-            for r in range(c + 1, m):
-                v -= S[c, r] * B[r, q]
-            B[c, q] = v / d
-    return True
+from swarmraft.estimation.joint import PIVOT_FLOOR, _cholesky, _cholesky_solve_columns
 
 
 @njit(cache=True)
@@ -114,15 +80,19 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
                     s = 0.5 * (S[a, c] + S[c, a])
                     S[a, c] = s
                     S[c, a] = s
-            for q in range(m):  # Z = S^-1 X' (m, N)
-                for r in range(N):
-                    Z[q, r] = X[r, q]
-            if not _lu_solve(S, m, Z[:m]):
+            # Z = S^-1 X' (m, N) by Cholesky (S is symmetric positive definite where the
+            # hypothesis leaves every position fixed; elsewhere, or nearly so, nan: the
+            # hypothesis is left to `integrity.assess`, which inverts it directly)
+            if _cholesky(S, m) < PIVOT_FLOOR:
                 for i in range(n):
                     Cj[t, j, i] = np.nan
                 for r in range(N):
                     dj[t, j, r] = np.nan
                 continue
+            for q in range(m):
+                for r in range(N):
+                    Z[q, r] = X[r, q]
+            _cholesky_solve_columns(S, m, Z)
             # blocks of P_j: P0's plus X_i Z_i
             for i in range(n):
                 for a in range(3):

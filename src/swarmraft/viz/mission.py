@@ -295,26 +295,30 @@ def swarm_map(
     ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
     ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
     ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
+    # flagged drones ringed where they were placed; one the record gives no position
+    # (undetermined: nan) ringed at its report, dashed, so a frame shows every flag it carries
     placed = np.isfinite(vf).all(axis=1)
-    f = faulty & placed
-    if f.any():
-        ax.scatter(
-            vf[f, 0], vf[f, 1], s=260, facecolors="none", edgecolors="tab:blue", label="flagged", zorder=4
-        )
-    # a flagged drone the record gives no position (undetermined: nan) is ringed at its report,
-    # dashed, so a frame still shows every flag its record carries
-    g = faulty & ~placed & np.isfinite(rp).all(axis=1)
-    if g.any():
-        ax.scatter(
-            rp[g, 0],
-            rp[g, 1],
-            s=260,
-            facecolors="none",
-            edgecolors="tab:blue",
-            linestyles="--",
-            label="flagged, no verified position (ringed at its report)",
-            zorder=4,
-        )
+    rings = (
+        (faulty & placed, vf, "-", "flagged"),
+        (
+            faulty & ~placed & np.isfinite(rp).all(axis=1),
+            rp,
+            "--",
+            "flagged, no verified position (ringed at its report)",
+        ),
+    )
+    for where, at, ls, label in rings:
+        if where.any():
+            ax.scatter(
+                at[where, 0],
+                at[where, 1],
+                s=260,
+                facecolors="none",
+                edgecolors="tab:blue",
+                linestyles=ls,
+                label=label,
+                zorder=4,
+            )
     dead = ~alive
     if dead.any():
         ax.scatter(

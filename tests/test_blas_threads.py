@@ -38,3 +38,16 @@ def test_verify_batch_runs_the_detector_on_one_blas_thread(monkeypatch):
     ranges = np.linalg.norm(pos[:, :, None] - pos[:, None], axis=-1)
     registry.verify_batch(SnapshotBatch(pos, ranges, (1.5, 3.0), 0.1), "paper")
     assert seen == [{1}]
+
+
+def test_one_blas_thread_nests_and_restores_after_an_error():
+    before = blas_threads()
+    try:
+        with one_blas_thread():
+            with one_blas_thread():
+                assert blas_threads() == {1}
+            assert blas_threads() == {1}  # the inner exit leaves the outer's limit alone
+            raise KeyError("inside")
+    except KeyError:
+        pass
+    assert blas_threads() == before

@@ -99,3 +99,60 @@ def test_swarm_bound_in_chunks_is_the_bound_in_one_piece(monkeypatch):
     parts = swarm_crb(truth, trusted, measured, G, 0.1, ins_cov=ins, common_cov=np.eye(3))
     assert np.array_equal(whole, parts)
     assert np.isfinite(whole).all() and len({float(c[0, 0, 0]) for c in whole}) == T
+
+
+def _svd_rule(J):
+    """The singularity rule stated plainly: inverse where the 2-norm condition number (SVD)
+    is below MAX_CONDITION and the matrix is finite, inf elsewhere."""
+    from swarmraft.estimation.bounds import MAX_CONDITION
+
+    out = np.full_like(J, np.inf)
+    for k, A in enumerate(J):
+        if np.isfinite(A).all() and np.linalg.cond(A) < MAX_CONDITION:
+            out[k] = np.linalg.inv(A)
+    return out
+
+
+def test_singular_information_is_decided_by_the_condition_number_as_the_svd_decides_it():
+    # `_safe_inv` decides most matrices from the 1-norm condition number of the inverse it
+    # computes anyway, the SVD only in the band where that cannot decide: well conditioned,
+    # in the band on both sides of the limit, far beyond it, exactly singular, not finite
+    from swarmraft.estimation.bounds import MAX_CONDITION, _safe_inv
+
+    rng = np.random.default_rng(5)
+    N = 12
+    mats = []
+    for cond in (
+        10.0,
+        1e6,
+        MAX_CONDITION / 30,
+        MAX_CONDITION / 2,
+        MAX_CONDITION * 2,
+        MAX_CONDITION * 30,
+        1e15,
+    ):
+        Q, _ = np.linalg.qr(rng.normal(size=(N, N)))
+        s = np.geomspace(1.0, 1.0 / cond, N)
+        mats.append((Q * s) @ Q.T)
+    mats.append(np.diag([1.0] * (N - 1) + [0.0]))  # exactly singular: LAPACK refuses the batch
+    bad = np.eye(N)
+    bad[0, 1] = np.nan
+    mats.append(bad)
+    J = np.array(mats)
+    expected = _svd_rule(J)
+    got = _safe_inv(J)
+    assert np.array_equal(np.isinf(got), np.isinf(expected))
+    assert np.array_equal(got, expected)  # the same inverse, bit for bit, where there is one
+    assert [bool(np.isfinite(g).all()) for g in got] == [
+        True,
+        True,
+        True,
+        True,
+        False,
+        False,
+        False,
+        False,
+        False,
+    ]
+    # without the singular members the batch inverts at once and decides by the norms
+    assert np.array_equal(_safe_inv(J[:7]), expected[:7])

@@ -69,13 +69,41 @@ def anchor_crb(
 
 
 def _safe_inv(J: np.ndarray) -> np.ndarray:
-    """Inverse of each information matrix; inf where it is singular."""
+    """Inverse of each information matrix; inf where it is singular: where its 2-norm
+    condition number is not below `MAX_CONDITION` (or it is not finite).
+
+    The condition number is decided from the inverse the answer needs anyway: for N x N
+    matrices cond_2 / N <= cond_1 = |J|_1 |J^-1|_1 <= N cond_2, so cond_1 below
+    MAX_CONDITION / N is fixed and above MAX_CONDITION N singular without an SVD; only the
+    band between (and a batch LAPACK cannot invert) takes the SVD. The SVD was 3x the
+    inverse's cost at n = 17 and 2x at n = 256; the answer is the same, bit for bit."""
     out = np.full_like(J, np.inf)
-    cond = np.linalg.cond(J)
-    ok = np.isfinite(cond) & (cond < 1e12)
-    if ok.any():
-        out[ok] = np.linalg.inv(J[ok])
+    N = J.shape[-1]
+    finite = np.isfinite(J).all(axis=(-1, -2))
+    P = None
+    if finite.all():
+        try:
+            P = np.linalg.inv(J)
+        except np.linalg.LinAlgError:  # a singular matrix in the batch: the SVD decides
+            P = None
+    if P is None:
+        ok = finite.copy()
+        ok[finite] = np.linalg.cond(J[finite]) < MAX_CONDITION
+        if ok.any():
+            out[ok] = np.linalg.inv(J[ok])
+        return out
+    with np.errstate(invalid="ignore", over="ignore"):
+        c1 = np.abs(J).sum(axis=-2).max(axis=-1) * np.abs(P).sum(axis=-2).max(axis=-1)
+    ok = np.isfinite(c1) & (c1 < MAX_CONDITION / N)
+    band = np.isfinite(c1) & ~ok & (c1 <= MAX_CONDITION * N)
+    if band.any():
+        ok[band] = np.linalg.cond(J[band]) < MAX_CONDITION
+    out[ok] = P[ok]
     return out
+
+
+#: an information matrix at or above this 2-norm condition number is singular (`_safe_inv`)
+MAX_CONDITION = 1e12
 
 
 def swarm_information(

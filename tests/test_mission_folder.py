@@ -58,3 +58,15 @@ def test_a_folder_that_is_not_a_mission_is_one_clear_error(written, tmp_path):
     (tmp_path / "steps.csv").write_text("\n".join(lines[:-1]) + "\n")
     with pytest.raises(ConfigError, match="not a multiple of 6 drones"):
         read_mission(tmp_path)
+
+
+def test_results_written_from_errors_given_are_the_results_written_from_scratch(written, tmp_path):
+    # a caller that has the bounds already (bench_scale times them apart) passes them in;
+    # the files must be what write_results computes itself
+    from swarmraft.experiments.mission import error_series
+
+    out, res = written
+    again = write_results(res.log, tmp_path, errors=error_series(res.log))
+    for name in ("steps.csv", "summary.json", "scenario.json"):
+        assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
+    assert again.summary == res.summary

@@ -501,12 +501,19 @@ def run_and_write(sc: Scenario, out: Path, progress: Any = None, on_step: Any = 
     return write_results(run_mission(sc, progress, on_step), out)
 
 
-def write_results(log: MissionLog, out: Path, extra: dict[str, Any] | None = None) -> MissionResult:
+def write_results(
+    log: MissionLog,
+    out: Path,
+    extra: dict[str, Any] | None = None,
+    errors: dict[str, np.ndarray] | None = None,
+) -> MissionResult:
     """A mission log's steps.csv, summary.json (with ``extra`` fields added) and scenario.json
-    in ``out``: a simulated mission's, or a networked run's (``swarmraft launch``)."""
+    in ``out``: a simulated mission's, or a networked run's (``swarmraft launch``).
+    ``errors``: the log's `error_series`, if the caller has it already (computed here if not;
+    at 256 drones it is a minute of a 60 s mission's bounds)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    errors = error_series(log)
+    errors = error_series(log) if errors is None else errors
     summary = {**summarize(log, errors), **(extra or {})}
     write_rows(out / "steps.csv", step_columns(log), step_rows(log, errors))
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

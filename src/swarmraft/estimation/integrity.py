@@ -48,7 +48,7 @@ from scipy.special import ndtri
 
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
 from swarmraft.estimation.mirror import mirror_ambiguous
-from swarmraft.estimation.noise import NoiseModel, NoiseParams
+from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
@@ -154,7 +154,7 @@ def _hypothesis_information(
     in order bit for bit: an off-diagonal block gets two terms, a diagonal one is summed in
     the same order of j."""
     T, n, _ = x.shape
-    G = np.linalg.inv(noise.gnss_cov)
+    G = gnss_information(noise.gnss_cov)  # memoised: the same inverse, bit for bit
     w_r = 1.0 / noise.range_sigma**2
     diff = x[:, :, None, :] - x[:, None, :, :]
     dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))

@@ -328,3 +328,17 @@ def test_launch_refuses_bad_input_with_one_line(tmp_path):
     done = run_cli("launch", "--scenario", "demo", "--out", str(tmp_path / "b"))
     assert done.returncode == 2
     assert done.stderr.strip().startswith(f"error: --out: {tmp_path / 'b'} holds a swarm already")
+
+
+def test_a_drone_warms_up_its_detector_on_a_flagged_step_as_well():
+    # the first step with a flagged drone loads the rival search and the re-inclusion (20 ms
+    # more than the next such step): a drone process pays that before its first step, not
+    # inside it at a spoof's onset
+    from swarmraft.net.node import warm_up_detector
+    from swarmraft.sim.scenario import Scenario
+    from swarmraft.sim.sensing import ScenarioWorld
+
+    records = warm_up_detector(ScenarioWorld.build(Scenario(drones=9, duration_s=1, seed=3)))
+    assert [r.step for r in records] == [0, 1]
+    assert not records[0].faulty.any()
+    assert records[1].faulty[4]  # the report moved by 40 m

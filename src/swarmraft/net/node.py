@@ -140,18 +140,31 @@ def entries_per_append(n: int) -> int:
     return max(1, min(64, (wire.MAX_PAYLOAD - 54) // per_entry))
 
 
-def warm_up_detector(world: ScenarioWorld) -> None:
-    """Run the detector once on step 0 with a throwaway drone and keys: its first call takes
-    0.5 s (2 s on a busy machine: lazy imports and first-time setup), which a newly elected
-    leader must not pay inside a step."""
+def warm_up_detector(world: ScenarioWorld) -> list[StepRecord]:
+    """Run the detector on two steps with a throwaway drone and keys, the second with one
+    report moved 40 m so that a drone is flagged: the first call takes 0.5 s (2 s on a busy
+    machine: lazy imports and first-time setup) and the first step with a flagged drone 20 ms
+    more than the next (the rival search, the re-inclusion and their compiled kernels load on
+    first use). A newly elected leader, and every voter auditing its record, must not pay
+    that inside a step: nine processes paying it at once at a spoof's onset skipped steps.
+    Returns the two records."""
     n = world.sc.drones
+    records = []
     keys = Keyring.generate(n, np.random.default_rng(0))
     drone = SwarmDrone(0, world.protocol, keys)
-    ins = world.ins_estimate(0, np.zeros(n), world.traj.positions[0])
-    ranges = world.measured_ranges(0, ins)
-    for i in range(n):
-        drone.receive(keys.sign(Report(0, i, world.fix[0, i], "gnss", ranges[i], None)))
-    drone.verify_step(0, 0)
+    for step in (0, 1):
+        ins = world.ins_estimate(step, np.zeros(n), world.traj.positions[0])
+        ranges = world.measured_ranges(step, ins)
+        fix = world.fix[step].copy()
+        if step == 1:
+            fix[n // 2, 0] += 40.0
+        for i in range(n):
+            drone.receive(keys.sign(Report(step, i, fix[i], "gnss", ranges[i], None)))
+        record = drone.verify_step(step, 0)
+        if record is not None:
+            drone.apply(drone.seal(record))
+            records.append(record)
+    return records
 
 
 def record_hash(data: bytes) -> str:

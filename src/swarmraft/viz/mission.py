@@ -295,60 +295,36 @@ def swarm_map(
     ax.scatter(tr[:, 0], tr[:, 1], **TRUE_STYLE, zorder=3)
     ax.scatter(rp[:, 0], rp[:, 1], **{**REPORT_STYLE, "s": 35}, zorder=3)
     ax.scatter(vf[:, 0], vf[:, 1], **{**RECOVERED_STYLE, "s": 70}, zorder=4)
-    # flagged drones ringed where they were placed; one the record gives no position
-    # (undetermined: nan) ringed at its report, dashed, so a frame shows every flag it carries
+    # markers over the drones, each (drones, at, style): flagged drones ringed where they were
+    # placed; one the record gives no position (undetermined: nan) ringed at its report,
+    # dashed, so a frame shows every flag it carries; crashed and jammed drones; the leader
     placed = np.isfinite(vf).all(axis=1)
-    rings = (
-        (faulty & placed, vf, "-", "flagged"),
+    ring = {"s": 260, "facecolors": "none", "edgecolors": "tab:blue", "zorder": 4}
+    lead = np.arange(truth.shape[0]) == leader - 1
+    marks = (
+        (faulty & placed, vf, {**ring, "linestyles": "-", "label": "flagged"}),
         (
             faulty & ~placed & np.isfinite(rp).all(axis=1),
             rp,
-            "--",
-            "flagged, no verified position (ringed at its report)",
+            {**ring, "linestyles": "--", "label": "flagged, no verified position (ringed at its report)"},
+        ),
+        (~alive, tr, {"s": 150, "marker": "X", "c": "black", "label": "crashed (no report)", "zorder": 5}),
+        (
+            outage & alive,
+            tr,
+            {"s": 200, "marker": "s", "facecolors": "none", "edgecolors": "purple", "lw": 1.4}
+            | {"label": "jammed (reports its INS)", "zorder": 5},
+        ),
+        (
+            lead,
+            tr,
+            {"s": 300, "marker": "D", "facecolors": "none", "edgecolors": "black", "lw": 1.2}
+            | {"label": "Raft leader", "zorder": 5},
         ),
     )
-    for where, at, ls, label in rings:
+    for where, at, style in marks:
         if where.any():
-            ax.scatter(
-                at[where, 0],
-                at[where, 1],
-                s=260,
-                facecolors="none",
-                edgecolors="tab:blue",
-                linestyles=ls,
-                label=label,
-                zorder=4,
-            )
-    dead = ~alive
-    if dead.any():
-        ax.scatter(
-            tr[dead, 0], tr[dead, 1], s=150, marker="X", c="black", label="crashed (no report)", zorder=5
-        )
-    jam = outage & alive
-    if jam.any():
-        ax.scatter(
-            tr[jam, 0],
-            tr[jam, 1],
-            s=200,
-            marker="s",
-            facecolors="none",
-            edgecolors="purple",
-            lw=1.4,
-            label="jammed (reports its INS)",
-            zorder=5,
-        )
-    if leader > 0:
-        ax.scatter(
-            tr[leader - 1, 0],
-            tr[leader - 1, 1],
-            s=300,
-            marker="D",
-            facecolors="none",
-            edgecolors="black",
-            lw=1.2,
-            label="Raft leader",
-            zorder=5,
-        )
+            ax.scatter(at[where, 0], at[where, 1], **style)
     pts = np.concatenate([tr, rp, vf])
     pts = pts[np.isfinite(pts).all(axis=1)]
     if limits is None:

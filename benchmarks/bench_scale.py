@@ -78,6 +78,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.drones < 17:
         ap.error("--drones: at least 17 (drones 3, 9 and 17 are spoofed)")
+    if not args.seconds > 0:
+        ap.error(f"--seconds: must be > 0, got {args.seconds:g}")
     try:
         sc = Scenario(
             name=f"scale-{args.drones}",

@@ -280,8 +280,52 @@ def test_raft_refusal_sends_no_reject() -> None:
     acks = [m for m in rd.messages if m.type == MsgType.APP_RESP]
     assert len(acks) == 1 and not acks[0].reject and acks[0].index == 1
     assert [e.data for e in rd.entries] == [b"a"]
-    assert node.status.refused == 1 and node.role == "candidate"
-    assert all(m.force for m in rd.messages if m.type == MsgType.VOTE)
+    assert node.status.refused == 1
+
+
+def refusing(node_id: int, peers: tuple[int, ...]) -> tuple[RaftNode, list[Message]]:
+    """Node ``node_id`` following leader 2 (term 1) after refusing its entry b"x"; the
+    messages it sent then."""
+    node = RaftNode(
+        RaftConfig(node_id, peers), MemoryStorage(), random.Random(0), validate=lambda e: e.data != b"x"
+    )
+    node.step(Message(MsgType.HEARTBEAT, 2, node_id, 1))
+    node.advance(node.ready())
+    lie = Entry(1, 1, b"x")
+    node.step(Message(MsgType.APP, 2, node_id, 1, log_term=0, index=0, entries=(lie,), commit=0))
+    rd = node.ready()
+    node.advance(rd)
+    return node, rd.messages
+
+
+def test_refusal_deposes_the_leader_with_one_forced_election() -> None:
+    """Every voter refuses a lie at about the same time: only the first voter after the liar
+    in id order campaigns (forced: the reason is carried), so the vote does not split; the
+    others stop following the liar, so their election timers run."""
+    successor, sent = refusing(3, (1, 2))  # after 2 comes 3
+    assert successor.role == "candidate" and successor.term == 2
+    votes = [m for m in sent if m.type == MsgType.VOTE]
+    assert {m.to for m in votes} == {1, 2} and all(m.force for m in votes)
+    other, sent = refusing(1, (2, 3))
+    assert other.role == "follower" and other.lead is None and other.term == 1
+    assert not [m for m in sent if m.type in (MsgType.VOTE, MsgType.PRE_VOTE)]
+    # it votes for the successor's forced election
+    other.step(Message(MsgType.VOTE, 3, 1, 2, index=0, log_term=0, force=True))
+    assert [m.reject for m in other.ready().messages if m.type == MsgType.VOTE_RESP] == [False]
+
+
+def test_a_deposed_leader_is_not_followed_or_voted_for_until_another_leads() -> None:
+    node, _ = refusing(1, (2, 3))
+    node.step(Message(MsgType.HEARTBEAT, 2, 1, 1))
+    assert node.lead is None  # dropped, as if lost
+    node.step(Message(MsgType.VOTE, 2, 1, 3, index=1, log_term=1, force=True))
+    node.step(Message(MsgType.PRE_VOTE, 2, 1, 4, index=1, log_term=1))
+    answers = [m for m in node.ready().messages if m.type in (MsgType.VOTE_RESP, MsgType.PRE_VOTE_RESP)]
+    assert answers and all(m.reject for m in answers)
+    node.step(Message(MsgType.HEARTBEAT, 3, 1, 5))  # another leader: 2 is trusted again
+    node.advance(node.ready())
+    node.step(Message(MsgType.VOTE, 2, 1, 6, index=1, log_term=1, force=True))
+    assert [m.reject for m in node.ready().messages if m.type == MsgType.VOTE_RESP] == [False]
 
 
 def lying(mode: str, seed: int, drones: int = N, duration: float = 6.0) -> Scenario:

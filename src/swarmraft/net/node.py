@@ -238,8 +238,6 @@ class DroneHost:
         # the lying-leader fault: this drone lies from a SIGUSR1 on (`compromise`)
         self._lie = next((f for f in self.sc.fault if f.kind == "lying-leader"), None)
         self._lying = False
-        # when to campaign after a censorship finding (0-30 ms: `_censorship_found`)
-        self._depose_rng = random.Random(int.from_bytes(os.urandom(8)))
         self.raft_config = RaftConfig(
             id=drone_id,
             peers=tuple(i for i in sorted(swarm.drones) if i != drone_id),
@@ -894,20 +892,18 @@ class DroneHost:
         return ok
 
     def _censorship_found(self, why: str, term: int) -> None:
-        """The leader of ``term`` censors: campaign after a random 0-30 ms unless the term
-        moved on meanwhile (every voter finds it on the same record; campaigning at once they
-        would split the vote, as `sim.mission` found)."""
+        """The leader of ``term`` censors: deposed (`RaftNode.depose`) unless the term moved on
+        meanwhile."""
         self.counters["censorship_findings"] += 1
         self._event("censorship", term=term, why=why)
         _logger.warning("drone %d: the leader of term %d censors: %s", self.id, term, why)
 
         def depose() -> None:
-            if self.node.term == term:
-                self.node.campaign(force=True)
+            if self.node.term == term and self.node.lead is not None:
+                self.node.depose(self.node.lead)
 
-        wait_s = self._depose_rng.uniform(0, 3 * self.swarm.tick_ms) / 1000
-        # called in the audit thread: the timer is set on the loop's
-        self._loop.call_soon_threadsafe(self._loop.call_later, wait_s, self._push, depose)
+        # called in the audit thread: run on the loop's
+        self._loop.call_soon_threadsafe(self._push, depose)
 
     def compromise(self) -> None:
         """SIGUSR1: from now on this drone lies whenever it leads, as the scenario's

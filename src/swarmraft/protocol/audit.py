@@ -30,7 +30,7 @@ which remembers each check by (drone, signature, digest of the signed bytes); a 
 report that differs in any byte from the one received is verified in full.
 
 Pure logic: the host feeds reports (`note_report`), closes steps at their deadline
-(`close_step`) and starts the forced election.
+(`close_step`) and deposes the leader (`RaftNode.depose`) on a censorship finding.
 """
 
 from __future__ import annotations

@@ -110,6 +110,9 @@ class RaftNode:
         self._pending_reads: deque[tuple[int, int, int, int]] = deque()
         self._early_reads: list[tuple[int, int]] = []
         self._read_states: list[ReadState] = []
+        # a leader whose entry ``validate`` refused (`depose`): not listened to, not voted for,
+        # until another leader is heard
+        self._distrusted: int | None = None
 
     # -- public API -----------------------------------------------------------------------
     @property
@@ -219,6 +222,8 @@ class RaftNode:
         if m.type == MsgType.PROP:
             self._step_prop(m)
             return
+        if m.frm == self._distrusted and m.type in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP):
+            return  # the leader we deposed (`depose`): dropped, as if lost
         if m.term > self.term:
             if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
                 # The Raft thesis, section 9.6: a node that heard from a leader within the
@@ -287,6 +292,8 @@ class RaftNode:
         self._reset(term)
         self.role = Role.FOLLOWER
         self.lead = lead
+        if lead is not None:
+            self._distrusted = None  # another leader took over (`depose`)
 
     def _become_pre_candidate(self) -> None:
         # A pre-candidate keeps its term and vote: it only asks whether it could win.
@@ -337,6 +344,7 @@ class RaftNode:
         self._reset(self.term)
         self.role = Role.LEADER
         self.lead = self.id
+        self._distrusted = None  # another leader (this one) took over (`depose`)
         last = self.log.last_index()
         self.prs = {p: self._new_progress(last + 1) for p in self.conf_state.members if p != self.id}
         self._uncommitted.clear()
@@ -546,6 +554,8 @@ class RaftNode:
             self.vote == m.frm or (self.vote is None and self.lead is None) or (pre and m.term > self.term)
         )
         resp = MsgType.PRE_VOTE_RESP if pre else MsgType.VOTE_RESP
+        if m.frm == self._distrusted:
+            can_vote = False  # it led with an entry we refused: not again (`depose`)
         if can_vote and self.log.is_up_to_date(m.index, m.log_term):
             self._send(Message(resp, self.id, m.frm, m.term))
             if not pre:
@@ -613,16 +623,36 @@ class RaftNode:
             self._send(Message(MsgType.APP_RESP, self.id, m.frm, self.term, index=last))
             if refused:
                 # No reject (the leader would probe and resend forever): the refusal is
-                # counted and a forced election starts (the leader is faulty: the reason is
+                # counted and the leader deposed (`depose`: one forced election, the reason
                 # carried, so neither PreVote nor the lease stops it; the vote restriction
                 # still holds).
                 self.refused += 1
-                self.campaign(force=True)
+                self.depose(m.frm)
                 return
             if last <= last_index or (held := self._early.pop(last, None)) is None:
                 return
             last_index, m = last, held
             last, refused = self._take_append(m)
+
+    def depose(self, leader: int) -> None:
+        """This node found ``leader`` faulty: its entry was refused (`validate`), or the host
+        found it censoring. Every voter finds such a fault at about the same time (on the
+        same entry); were they all to campaign at once, each would vote for itself and the vote
+        would split, costing a randomised election timeout. So only the first voter after
+        ``leader`` in id order (cyclically) starts a forced election (the reason is carried:
+        neither PreVote nor the lease stops it); the others stop listening to ``leader`` (its
+        appends, heartbeats and snapshots are dropped, as if lost, and it is no longer their
+        leader: their election timers run and no lease holds) and vote for that voter when it
+        asks, or, if it does not win (down, or its log behind), elect one by their election
+        timeout as usual. Until another leader is heard (or this node leads), ``leader`` gets
+        no vote or pre-vote: after a refusal its log holds the refused entry, so it is more up
+        to date than the voters that refused it and would otherwise win again whenever its
+        timer fired first."""
+        self._distrusted = leader
+        self.lead = None
+        others = sorted(p for p in self.conf_state.voters if p != leader)
+        if others and next((p for p in others if p > leader), others[0]) == self.id:
+            self.campaign(force=True)
 
     def _take_append(self, m: Message) -> tuple[int | None, bool]:
         """The log's consistency check and append (`RaftLog.maybe_append`), and the

@@ -228,7 +228,6 @@ class Mission:
         self.drones = [self._new_drone(i) for i in range(n)]
         # the report fan-out's own generator: it must not shift the draws of the rest of the run
         self._fan_rng = random.Random(sc.seed * 7_919 + 17)
-        self._depose_rng = random.Random(sc.seed * 7_919 + 29)
         self.liar: int | None = None  # the compromised drone (node id), lying-leader fault
         self._lie = next((f for f in sc.fault if f.kind == "lying-leader"), None)
         self._lying = False
@@ -456,7 +455,7 @@ class Mission:
 
     def _validate(self, node: int, entry: Entry) -> bool:
         """Node's validator (its drone's audit); a refusal and a censorship finding are logged,
-        and a censorship finding starts a forced election (a refusal starts one in Raft)."""
+        and a censorship finding deposes the leader (Raft deposes it on a refusal)."""
         audit = self.drones[node - 1].audit
         n_refused = len(audit.refused)
         ok = audit.validate(entry)
@@ -468,17 +467,14 @@ class Mission:
         why = audit.take_suspicion()
         if why is not None:
             self.suspicions.append((now, node, why))
-            # Every voter finds a censoring leader on the same record: campaigning at once,
-            # they split the vote (at 17 drones a new leader was deposed again by the churn).
-            # Each waits a random 0-30 ms and gives up if its term moved on (it voted).
-            wait = self._depose_rng.uniform(0, 3 * self.sc.raft.tick_ms)
-            self.cluster.loop.after(wait, self._depose, node, term)
+            # deposed once this append is done (`RaftNode.depose`), unless the term moved on
+            self.cluster.loop.after(0, self._depose, node, term)
         return ok
 
     def _depose(self, node: int, term: int) -> None:
         rn = self.cluster.nodes.get(node)
-        if rn is not None and rn.term == term:
-            self.cluster.campaign(node, True)
+        if rn is not None and rn.term == term and rn.lead is not None:
+            self.cluster.depose(node, rn.lead)
 
     def audit_summary(self) -> dict:
         """Counts of the audit: refused entries (at append, by honest drones), refused applies,

@@ -554,6 +554,14 @@ class Cluster:
         node.campaign(force)
         self._process(i)
 
+    def depose(self, i: int, leader: int) -> None:
+        """Node i found ``leader`` faulty (`RaftNode.depose`), if it is up and not paused."""
+        node = self.nodes.get(i)
+        if node is None or i in self._held:
+            return
+        node.depose(leader)
+        self._process(i)
+
     def leader(self) -> int | None:
         """The live, running (not paused) leader of the highest term, or None."""
         best = None

@@ -19,15 +19,19 @@ SIGUSR1 at the fault's time), one at a time; the invariant is read from the dron
 ``loss-net``: an honest swarm of processes behind the fault relay at ``--loss`` (default 10 %)
 for ``--duration`` s (default 600): censorship findings and refused entries (target 0).
 
+``--keep DIR`` (the ``-net`` runs): each swarm's folder (scenario, keys, the drones' step and
+event files) is kept under DIR, so a slow mission can be looked at afterwards.
+
 Run: .venv/bin/python benchmarks/accept_audit.py lying [--drones 9 17] [--seeds 1 .. 10] [--jobs 2]
      .venv/bin/python benchmarks/accept_audit.py honest [--seeds 1 .. 10] [--jobs 2]
-     .venv/bin/python benchmarks/accept_audit.py lying-net [--drones 9] [--seeds 1 .. 10]
+     .venv/bin/python benchmarks/accept_audit.py lying-net [--drones 9] [--seeds 1 .. 10] [--keep DIR]
      .venv/bin/python benchmarks/accept_audit.py loss-net [--drones 9] [--loss 0.1] [--duration 600]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import tempfile
 import tomllib
 from concurrent.futures import ProcessPoolExecutor
@@ -105,8 +109,20 @@ def launched(data: dict, folder: Path):  # noqa: ANN201 (a MissionLog)
     return launch_log(ScenarioWorld.build(sc), run.nodes_dir, run.start_unix_s, run.events, run.kills)
 
 
-def lying_net(mode: str, n: int, seed: int) -> dict:
-    with tempfile.TemporaryDirectory(prefix="accept-audit-net-") as tmp:
+def run_folder(keep: Path | None, name: str):  # noqa: ANN201 (a context manager of a Path)
+    """Where a swarm of processes runs: ``keep / name`` (kept, a fresh folder) or a temporary
+    folder deleted afterwards."""
+    if keep is None:
+        return tempfile.TemporaryDirectory(prefix="accept-audit-net-")
+    folder = keep / name
+    if folder.exists():
+        raise SystemExit(f"--keep: {folder} exists; give a folder without it")
+    folder.mkdir(parents=True)
+    return contextlib.nullcontext(str(folder))
+
+
+def lying_net(mode: str, n: int, seed: int, keep: Path | None = None) -> dict:
+    with run_folder(keep, f"lying-{mode}-{n}-{seed}") as tmp:
         log = launched(lying_scenario(mode, n, seed), Path(tmp))
     out = outcome(log, mode, n, seed)
     if log.audit["falsified_applied"]:
@@ -115,9 +131,9 @@ def lying_net(mode: str, n: int, seed: int) -> dict:
     return out
 
 
-def loss_net(n: int, seed: int, loss: float, duration_s: float) -> dict:
+def loss_net(n: int, seed: int, loss: float, duration_s: float, keep: Path | None = None) -> dict:
     data = {"name": "loss", "seed": seed, "drones": n, "duration_s": duration_s, "network": {"loss": loss}}
-    with tempfile.TemporaryDirectory(prefix="accept-audit-loss-") as tmp:
+    with run_folder(keep, f"loss-{n}-{seed}") as tmp:
         log = launched(data, Path(tmp))
     a = log.audit
     return {
@@ -191,13 +207,16 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--loss", type=float, default=0.1, help="loss-net: loss probability (default 0.1)")
     ap.add_argument("--duration", type=float, default=600.0, help="loss-net: seconds (default 600)")
+    ap.add_argument(
+        "--keep", type=Path, default=None, help="-net: keep each swarm's folder (drone files) under this one"
+    )
     a = ap.parse_args()
     net = a.what.endswith("-net")
     drones = a.drones or ([9] if net else [9, 17])
     if a.what == "loss-net":
         for n in drones:
             for s in a.seeds:
-                r = loss_net(n, s, a.loss, a.duration)
+                r = loss_net(n, s, a.loss, a.duration, a.keep)
                 print(r, flush=True)
                 bad = r["refused_entries"] + r["refused_applies"] + r["censorship_findings"]
                 print(f"n={n} seed {s}: {bad} refused entries or censorship findings (target 0)", flush=True)
@@ -207,7 +226,7 @@ def main() -> None:
         for m in a.modes:
             for n in drones:
                 for s in a.seeds:
-                    rows.append(lying_net(m, n, s))
+                    rows.append(lying_net(m, n, s, a.keep))
                     print(rows[-1], flush=True)
         report(rows, a.modes, drones)
         return

@@ -328,6 +328,16 @@ def test_a_deposed_leader_is_not_followed_or_voted_for_until_another_leads() -> 
     assert [m.reject for m in node.ready().messages if m.type == MsgType.VOTE_RESP] == [False]
 
 
+def test_a_deposed_leader_elected_again_is_followed() -> None:
+    """Only the deposed leadership's messages are dropped: elected again in a later term by
+    the others, the deposed leader is followed (else this voter would time out and churn)."""
+    node, _ = refusing(1, (2, 3))
+    node.step(Message(MsgType.HEARTBEAT, 2, 1, 1))
+    assert node.lead is None
+    node.step(Message(MsgType.HEARTBEAT, 2, 1, 3))
+    assert node.lead == 2 and node.term == 3
+
+
 def lying(mode: str, seed: int, drones: int = N, duration: float = 6.0) -> Scenario:
     target = 3 if mode == "clear" else 5
     return Scenario(

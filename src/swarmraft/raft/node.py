@@ -113,6 +113,7 @@ class RaftNode:
         # a leader whose entry ``validate`` refused (`depose`): not listened to, not voted for,
         # until another leader is heard
         self._distrusted: int | None = None
+        self._distrusted_term = 0  # the term it led when deposed
 
     # -- public API -----------------------------------------------------------------------
     @property
@@ -222,8 +223,12 @@ class RaftNode:
         if m.type == MsgType.PROP:
             self._step_prop(m)
             return
-        if m.frm == self._distrusted and m.type in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP):
-            return  # the leader we deposed (`depose`): dropped, as if lost
+        if (
+            m.frm == self._distrusted
+            and m.term <= self._distrusted_term
+            and m.type in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP)
+        ):
+            return  # the leadership we deposed (`depose`): dropped, as if lost
         if m.term > self.term:
             if m.type in (MsgType.VOTE, MsgType.PRE_VOTE):
                 # The Raft thesis, section 9.6: a node that heard from a leader within the
@@ -641,14 +646,14 @@ class RaftNode:
         would split, costing a randomised election timeout. So only the first voter after
         ``leader`` in id order (cyclically) starts a forced election (the reason is carried:
         neither PreVote nor the lease stops it); the others stop listening to ``leader`` (its
-        appends, heartbeats and snapshots are dropped, as if lost, and it is no longer their
-        leader: their election timers run and no lease holds) and vote for that voter when it
+        appends, heartbeats and snapshots of that term are dropped, as if lost, and it is no
+        longer their leader: their election timers run and no lease holds) and vote for that voter when it
         asks, or, if it does not win (down, or its log behind), elect one by their election
         timeout as usual. Until another leader is heard (or this node leads), ``leader`` gets
         no vote or pre-vote: after a refusal its log holds the refused entry, so it is more up
         to date than the voters that refused it and would otherwise win again whenever its
         timer fired first."""
-        self._distrusted = leader
+        self._distrusted, self._distrusted_term = leader, self.term
         self.lead = None
         others = sorted(p for p in self.conf_state.voters if p != leader)
         if others and next((p for p in others if p > leader), others[0]) == self.id:

@@ -117,6 +117,23 @@ def test_a_learner_never_sends_a_vote_request():
     assert node.role == Role.FOLLOWER and not node.msgs
 
 
+def test_a_learner_cannot_depose_its_leader():
+    """A learner that finds its leader faulty (a refused entry, a censorship finding) keeps
+    following it: it cannot elect another, and dropping the leader's appends would leave it
+    behind for good (a committee of one never promoted its learner: learners' false censorship
+    findings there)."""
+    c, k = with_learner()
+    node = c.nodes[k]
+    lead = node.lead
+    assert lead is not None
+    node.depose(lead)
+    assert node.lead == lead and node.role == Role.FOLLOWER and not node.msgs
+    before = node.log.last_index()
+    c.propose(b"after")
+    c.run(300)
+    assert c.nodes[k].log.last_index() > before  # still receives the leader's appends
+
+
 def test_promotion_of_a_learner_that_is_behind_is_refused_with_the_reason():
     c, k = with_learner()
     c.crash(k)

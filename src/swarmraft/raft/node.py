@@ -652,7 +652,11 @@ class RaftNode:
         timeout as usual. Until another leader is heard (or this node leads), ``leader`` gets
         no vote or pre-vote: after a refusal its log holds the refused entry, so it is more up
         to date than the voters that refused it and would otherwise win again whenever its
-        timer fired first."""
+        timer fired first. A learner (or a removed node) cannot depose: it keeps following
+        ``leader`` (it cannot elect another, and dropping the appends would leave it behind;
+        its audit still refuses to apply a lie)."""
+        if self.id not in self.conf_state.voters:
+            return  # a learner (or a removed node) cannot depose: it keeps following
         self._distrusted, self._distrusted_term = leader, self.term
         self.lead = None
         others = sorted(p for p in self.conf_state.voters if p != leader)

@@ -898,12 +898,8 @@ class DroneHost:
         self._event("censorship", term=term, why=why)
         _logger.warning("drone %d: the leader of term %d censors: %s", self.id, term, why)
 
-        def depose() -> None:
-            if self.node.term == term and self.node.lead is not None:
-                self.node.depose(self.node.lead)
-
         # called in the audit thread: run on the loop's
-        self._loop.call_soon_threadsafe(self._push, depose)
+        self._loop.call_soon_threadsafe(self._push, lambda: self.node.depose(self.node.lead, term))
 
     def compromise(self) -> None:
         """SIGUSR1: from now on this drone lies whenever it leads, as the scenario's

@@ -110,7 +110,7 @@ class RaftNode:
         self._pending_reads: deque[tuple[int, int, int, int]] = deque()
         self._early_reads: list[tuple[int, int]] = []
         self._read_states: list[ReadState] = []
-        # a leader whose entry ``validate`` refused (`depose`): not listened to, not voted for,
+        # a leader this node deposed (`depose`): not listened to in that term, not voted for,
         # until another leader is heard
         self._distrusted: int | None = None
         self._distrusted_term = 0  # the term it led when deposed
@@ -639,9 +639,10 @@ class RaftNode:
             last_index, m = last, held
             last, refused = self._take_append(m)
 
-    def depose(self, leader: int) -> None:
+    def depose(self, leader: int | None, term: int | None = None) -> None:
         """This node found ``leader`` faulty: its entry was refused (`validate`), or the host
-        found it censoring. Every voter finds such a fault at about the same time (on the
+        found it censoring in ``term`` (nothing if this node's term has moved on since, or it
+        has no leader). Every voter finds such a fault at about the same time (on the
         same entry); were they all to campaign at once, each would vote for itself and the vote
         would split, costing a randomised election timeout. So only the first voter after
         ``leader`` in id order (cyclically) starts a forced election (the reason is carried:
@@ -655,8 +656,9 @@ class RaftNode:
         timer fired first. A learner (or a removed node) cannot depose: it keeps following
         ``leader`` (it cannot elect another, and dropping the appends would leave it behind;
         its audit still refuses to apply a lie)."""
-        if self.id not in self.conf_state.voters:
-            return  # a learner (or a removed node) cannot depose: it keeps following
+        stale = term is not None and term != self.term
+        if leader is None or stale or self.id not in self.conf_state.voters:
+            return
         self._distrusted, self._distrusted_term = leader, self.term
         self.lead = None
         others = sorted(p for p in self.conf_state.voters if p != leader)

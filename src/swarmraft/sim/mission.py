@@ -473,8 +473,8 @@ class Mission:
 
     def _depose(self, node: int, term: int) -> None:
         rn = self.cluster.nodes.get(node)
-        if rn is not None and rn.term == term and rn.lead is not None:
-            self.cluster.depose(node, rn.lead)
+        if rn is not None:
+            self.cluster.depose(node, rn.lead, term)
 
     def audit_summary(self) -> dict:
         """Counts of the audit: refused entries (at append, by honest drones), refused applies,

@@ -554,12 +554,12 @@ class Cluster:
         node.campaign(force)
         self._process(i)
 
-    def depose(self, i: int, leader: int) -> None:
+    def depose(self, i: int, leader: int | None, term: int | None = None) -> None:
         """Node i found ``leader`` faulty (`RaftNode.depose`), if it is up and not paused."""
         node = self.nodes.get(i)
         if node is None or i in self._held:
             return
-        node.depose(leader)
+        node.depose(leader, term)
         self._process(i)
 
     def leader(self) -> int | None:

@@ -211,6 +211,8 @@ def main() -> None:
         "--keep", type=Path, default=None, help="-net: keep each swarm's folder (drone files) under this one"
     )
     a = ap.parse_args()
+    if a.keep is not None and a.keep.exists() and not a.keep.is_dir():
+        ap.error(f"--keep: {a.keep} is not a folder")
     net = a.what.endswith("-net")
     drones = a.drones or ([9] if net else [9, 17])
     if a.what == "loss-net":

@@ -43,13 +43,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 from pydantic import BaseModel
 
+from swarmraft.estimation.envelope import SPARSE_SHARE
 from swarmraft.estimation.joint import weighted_gauss_newton
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration
 
 K_LOW = 3.0  # once a link reads long beyond k, the links beyond this many sigmas are dropped
 TAMPER_SHARE = 0.5  # a drone disagreeing with more than this share of its links (one grossly) tampers
-SPARSE_SHARE = 0.5  # a screened range graph with at most this share of its pairs ranged is sparse
 _LOOSE = 1e8  # m^2: the variance of the pseudo-report that only fixes the fitted shape's gauge
 
 

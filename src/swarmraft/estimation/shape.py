@@ -48,6 +48,7 @@ residual tests judge it.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -78,9 +79,17 @@ class ShapeParams(IntegrityParams):
     )
 
 
+@lru_cache(maxsize=16)
 def triples(n: int, cap: int) -> np.ndarray:
     """Triples of drone indices (m, 3): all of them if there are at most ``cap``, else ``cap``
-    distinct ones from a fixed low-discrepancy sequence (the same for every call)."""
+    distinct ones from a fixed low-discrepancy sequence (the same for every call). Read-only,
+    and kept: the sequence's de-duplication was 18 ms of a 65-drone step."""
+    t = _triples(n, cap)
+    t.flags.writeable = False
+    return t
+
+
+def _triples(n: int, cap: int) -> np.ndarray:
     if n < 3:
         return np.zeros((0, 3), dtype=int)
     if math.comb(n, 3) <= cap:

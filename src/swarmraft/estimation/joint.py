@@ -120,31 +120,39 @@ def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - 
 
 
 @njit(cache=True)
-def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower=False):  # pragma: no cover
-    """Gauss-Newton normal equations H, g (in place) of one problem at xt. With ``lower``, of
-    H only the lower triangle (H[p, q], p >= q; the rest is left as it was), all
-    `_reduced_solve` reads: 21 entries per range instead of 36. Not the same bits as the full
+def _normal_equations(
+    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower, pos, first
+):  # pragma: no cover - compiled
+    """Gauss-Newton normal equations H, g (in place) of one problem at xt, drone i's
+    coordinates in rows (and columns) 3 pos[i] to 3 pos[i] + 2 of H (``pos`` the identity:
+    the drones' own order). With ``lower``, of H only the lower triangle (H[p, q], p >= q;
+    the rest is left as it was), all `_reduced_solve` and `_envelope_step` read: 21 entries
+    per range instead of 36, and of that only each block row's part from its first block
+    column ``first`` (by place; zeros: the whole triangle) is cleared: the envelope of
+    `envelope.coupling_order`, where every range falls. Not the same bits as the full
     matrix's lower triangle (an off-diagonal block takes u_a u_b where the full matrix's
-    transpose has u_b u_a)."""
+    transpose has u_b u_a). g is in the drones' own order."""
     n = xt.shape[0]
     if lower:
-        for p in range(3 * n):
-            for q in range(p + 1):
-                H[p, q] = 0.0
+        for p in range(n):
+            for r in range(3 * p, 3 * p + 3):
+                for q in range(3 * first[p], r + 1):
+                    H[r, q] = 0.0
     else:
         H[:, :] = 0.0
     g[:] = 0.0
     for i in range(n):
+        o = 3 * pos[i]
         w = gw[i]
         if w > 0:
             for a in range(3):
                 for b in range(3):
                     if not lower or b <= a:
-                        H[3 * i + a, 3 * i + b] += w * G[a, b]
+                        H[o + a, o + b] += w * G[a, b]
                     g[3 * i + a] += w * G[a, b] * (xt[i, b] - rep[i, b])
         if prior_w > 0 and np.isfinite(pr[i, 0]):
             for a in range(3):
-                H[3 * i + a, 3 * i + a] += prior_w
+                H[o + a, o + a] += prior_w
                 g[3 * i + a] += prior_w * (xt[i, a] - pr[i, a])
     for i in range(n):
         for j in range(n):
@@ -158,20 +166,21 @@ def _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower
             u = (d0 / dist, d1 / dist, d2 / dist)
             wr = w * inv_s2
             r = dist - d
-            lo, hi = (i, j) if i > j else (j, i)
+            oi, oj = 3 * pos[i], 3 * pos[j]
+            lo, hi = (oi, oj) if oi > oj else (oj, oi)
             for a in range(3):
                 g[3 * i + a] += wr * r * u[a]
                 g[3 * j + a] -= wr * r * u[a]
                 for b in range(3):
                     v = wr * u[a] * u[b]
                     if not lower or b <= a:
-                        H[3 * i + a, 3 * i + b] += v
-                        H[3 * j + a, 3 * j + b] += v
+                        H[oi + a, oi + b] += v
+                        H[oj + a, oj + b] += v
                     if lower:
-                        H[3 * lo + a, 3 * hi + b] -= v
+                        H[lo + a, hi + b] -= v
                     else:
-                        H[3 * i + a, 3 * j + b] -= v
-                        H[3 * j + a, 3 * i + b] -= v
+                        H[oi + a, oj + b] -= v
+                        H[oj + a, oi + b] -= v
 
 
 PIVOT_FLOOR = 1e-8
@@ -340,62 +349,10 @@ def _reduced_solve(H, g, lam, ridge, idx, loose, S, rhs, Y, D, F, step):  # prag
 
 
 @njit(cache=True)
-def _envelope_normal_equations(
-    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, pos, first, Hp, g
-):  # pragma: no cover - compiled
-    """`_normal_equations` for `_envelope_step`: g as there, H only inside its envelope and
-    in the drones' envelope order (drone i's coordinates are rows 3 pos[i] to 3 pos[i] + 2 of
-    Hp; only each row's part from its first column (`envelope.coupling_order`) to the
-    diagonal is written): work in proportion to the ranges, not to n^2."""
-    n = xt.shape[0]
-    for p in range(n):
-        for r in range(3 * p, 3 * p + 3):
-            for q in range(3 * first[p], r + 1):
-                Hp[r, q] = 0.0
-    g[:] = 0.0
-    for i in range(n):
-        o = 3 * pos[i]
-        w = gw[i]
-        if w > 0:
-            for a in range(3):
-                for b in range(a + 1):
-                    Hp[o + a, o + b] += w * G[a, b]
-                for b in range(3):
-                    g[3 * i + a] += w * G[a, b] * (xt[i, b] - rep[i, b])
-        if prior_w > 0 and np.isfinite(pr[i, 0]):
-            for a in range(3):
-                Hp[o + a, o + a] += prior_w
-                g[3 * i + a] += prior_w * (xt[i, a] - pr[i, a])
-    for i in range(n):
-        for j in range(n):
-            d = rng_[i, j]
-            w = rw[i, j]
-            if i == j or w <= 0 or np.isnan(d):
-                continue
-            dist, d0, d1, d2 = _separation(xt, i, j)
-            if dist == 0:
-                continue
-            u = (d0 / dist, d1 / dist, d2 / dist)
-            wr = w * inv_s2
-            r = dist - d
-            oi, oj = 3 * pos[i], 3 * pos[j]
-            lo, hi = (oi, oj) if oi > oj else (oj, oi)
-            for a in range(3):
-                g[3 * i + a] += wr * r * u[a]
-                g[3 * j + a] -= wr * r * u[a]
-                for b in range(3):
-                    v = wr * u[a] * u[b]
-                    if b <= a:
-                        Hp[oi + a, oi + b] += v
-                        Hp[oj + a, oj + b] += v
-                    Hp[lo + a, hi + b] -= v
-
-
-@njit(cache=True)
 def _envelope_step(Hp, g, lam, ridge, order, first, L, rhs, step):  # pragma: no cover - compiled
     """step = -A^-1 g for the damped normal equations A = H + diag(lam H_kk + ridge) of a
-    sparse range graph, from H's envelope in the drones' envelope order
-    (`_envelope_normal_equations`): copied into L and factorised there
+    sparse range graph, from H's envelope in the drones' envelope order (`_normal_equations`
+    with ``lower``, ``pos`` and ``first``): copied into L and factorised there
     (`envelope.envelope_cholesky`). The same step as solving A in exact arithmetic, not the
     same bits. False if a pivot is not positive or below ``PIVOT_FLOOR`` of its diagonal (the
     caller then solves A in full)."""
@@ -449,6 +406,8 @@ def levenberg_marquardt_kernel(
     order = np.zeros(n, dtype=np.int64)
     pos = np.zeros(n, dtype=np.int64)
     first = np.zeros(n, dtype=np.int64)
+    own = np.arange(n)  # the drones' own order, and no envelope: for the dense solvers
+    none = np.zeros(n, dtype=np.int64)
     for t in range(T):
         xt = x[t]
         rep, rng_, gw, rw, pr = reported[t], ranges[t], gnss_w[t], range_w[t], prior[t]
@@ -467,11 +426,11 @@ def levenberg_marquardt_kernel(
         for _ in range(iters):
             full = loose_count == 0 and not sparse  # H whole (else its lower triangle)
             if full:
-                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g)
+                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none)
             elif sparse:
-                _envelope_normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, pos, first, S, g)
+                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, S, g, True, pos, first)
             else:
-                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, True)
+                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, True, own, none)
             diag = S if sparse else H  # the same diagonal, in the envelope order
             scale = 1.0
             for k in range(N):
@@ -489,7 +448,9 @@ def levenberg_marquardt_kernel(
                     done = _reduced_solve(H, g, lam, ridge, idx[:m], loose, S, rhs, Y, D, F, step)
                 if not done:
                     if not full:  # the whole matrix for LU, from here on in this iteration
-                        _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g)
+                        _normal_equations(
+                            xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none
+                        )
                         full = True
                     for a in range(N):
                         for b in range(N):

@@ -245,6 +245,11 @@ def test_a_leaving_leader_that_is_the_only_voter_has_a_learner_promoted_first():
     ]
     assert m.cluster.nodes[m.cluster.leader()].conf_state.voters == (2,)
     assert log.committed[5:-1].all()
+    # the learners' own reports, made before they knew a leader to send them to, are no
+    # evidence of censorship (each learner found its honest leader censoring at 1.2 s when
+    # the sender held its own report)
+    assert m.suspicions == []
+    assert log.audit["censorship_findings"] == 0
 
 
 def test_a_crashed_joiner_restarts_a_member_and_a_crashed_leaver_is_let_go():

@@ -744,7 +744,7 @@ class DroneHost:
     def _fan_out(self, report: Report) -> None:
         """The report to every other voter but the leader it went to, once (the audit's
         censorship check, docs/audit.md; the simulator's `Mission._fan_out`: only voters can
-        depose a leader). Unlike the simulator's, a drone does not hold its own report for the
+        depose a leader). As in the simulator, a drone does not hold its own report for the
         check: it has it from the start, and a leader whose loop ran late may well not have
         had it in time (the other voters hold it, from this fan-out)."""
         for peer in self.node.conf_state.voters:

@@ -313,9 +313,11 @@ class Mission:
     def _fan_out(self, node: int, report: Report) -> None:
         """The report to every voter (in the sender's view of the configuration) but itself
         and the leader it went to (the audit's censorship check: only voters can depose a
-        leader; with a committee, learners get no copy), on the fan-out's own generator."""
+        leader; with a committee, learners get no copy), on the fan-out's own generator. The
+        sender does not hold its own report for the check (as the drone process does): it
+        holds it whether or not it reached a leader (a learner that knows no leader yet sends
+        it nowhere), and the other voters hold it from this copy."""
         data = report.encode()
-        self.drones[node - 1].audit.note_report(report)
         for j in self.cluster.nodes[node].conf_state.voters:
             if j != node and j != self.sent_to.get(node) and j in self.swarm:
                 self.cluster.send_app(node, j, self._fanned, data, rng=self._fan_rng)

@@ -172,3 +172,19 @@ def test_screen_keeps_the_links_of_two_clusters_out_of_range():
     ranges[:, np.arange(n), np.arange(n)] = 0.0
     s = screen(ranges, 0.1)
     assert s.dropped.sum() == 0 and not s.enlarged.any()
+
+
+def test_the_snapshot_bound_counts_only_the_ranges_the_radios_reach():
+    """A mission's snapshot bound (its error reference) counts a range only between drones
+    within ``max_range``: with no drone in reach of another it is each drone's GNSS alone
+    (it counted every pair as ranged: 1.6 m against GNSS's 3.7 m)."""
+    from swarmraft.experiments.mission import error_series
+    from swarmraft.sim.mission import Mission
+    from swarmraft.sim.scenario import Scenario
+
+    gnss_only = np.sqrt(2 * 1.5**2 + 3.0**2)
+    out_of_reach = Scenario(drones=9, duration_s=0.5, seed=1, ranging={"max_range": 1.0})
+    alone = error_series(Mission(out_of_reach).run())
+    np.testing.assert_allclose(alone["snapshot_bound"], gnss_only, rtol=1e-9)
+    ranged = error_series(Mission(Scenario(drones=9, duration_s=0.5, seed=1)).run())
+    assert (ranged["snapshot_bound"] < 0.6 * gnss_only).all()

@@ -19,6 +19,7 @@ from swarmraft.experiments.config import ConfigError, read_toml
 from swarmraft.experiments.tables import write_rows
 from swarmraft.sim.mission import MissionLog, run_mission
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
+from swarmraft.world.geometry import true_distances
 
 STEP_COLUMNS = (
     "step",
@@ -101,13 +102,28 @@ BOUND_NOTE = (
 )
 
 
+def _in_range(truth: np.ndarray, max_range: float | None) -> np.ndarray:
+    """(S, n, n) bool: the pairs of drones at ``truth`` (S, n, 3) that range each other, as
+    `world.ranging` decides it (nothing beyond ``max_range``; None: every pair), a block of
+    steps at a time (a 60 s mission of 256 drones holds 315 MB of distances)."""
+    S, n, _ = truth.shape
+    if max_range is None:
+        return np.ones((S, n, n), dtype=bool)
+    out = np.empty((S, n, n), dtype=bool)
+    step = max(1, 2**21 // (n * n))
+    for lo in range(0, S, step):
+        out[lo : lo + step] = ~(true_distances(truth[lo : lo + step]) > max_range)
+    return out
+
+
 def error_series(log: MissionLog) -> dict[str, np.ndarray]:
     """Per step and drone: error of the raw GNSS output, of INS alone (never reset), of INS
     aligned to the truth at the start of the drone's GNSS outage (nan outside outages), of
     SwarmRaft's committed position, and the snapshot bound (sqrt of the trace of the swarm
     Cramér-Rao bound of that step's measurements alone, with the spoofed, jammed and silent
-    drones' GNSS excluded). A drone outside the swarm (not joined yet, or left) has none of
-    them (nan): it takes no part in the bound's measurements either."""
+    drones' GNSS excluded, and only the ranges the scenario's radios reach: none between
+    drones farther apart than its ``max_range``). A drone outside the swarm (not joined yet,
+    or left) has none of them (nan): it takes no part in the bound's measurements either."""
     sc = log.scenario
     member = log.in_swarm()
 
@@ -125,8 +141,8 @@ def error_series(log: MissionLog) -> dict[str, np.ndarray]:
         for swarm in swarms:
             rows = np.flatnonzero((member == swarm).all(axis=1))
             idx = np.flatnonzero(swarm)
-            measured = np.ones((len(rows), idx.size, idx.size), dtype=bool)
             sub = np.ix_(rows, idx)
+            measured = _in_range(log.truth[sub], sc.ranging.max_range)
             C = swarm_crb(log.truth[sub], trusted[sub], measured, cov, sc.ranging.sigma)
             bound[sub] = np.sqrt(np.trace(C, axis1=2, axis2=3))
     return {

@@ -64,6 +64,20 @@ def test_order_is_a_permutation_whose_envelope_holds_every_coupling():
     assert (np.arange(n) - first).max() < n // 2
 
 
+def test_drones_without_a_range_do_not_make_a_swarm_sparse():
+    # six drones ranging each other and six outside the swarm (no range at all: not joined
+    # yet, or left): the graph of those that range is complete, so LU keeps solving it
+    rng = np.random.default_rng(5)
+    _, ranges = _grid_swarm(rng, n=12, max_range=1e6)
+    ranges[6:, :] = np.nan
+    ranges[:, 6:] = np.nan
+    share, *_ = _order(ranges, np.ones((12, 12)))
+    assert share == 1.0
+    ranges[0, 1] = ranges[1, 0] = np.nan
+    share, *_ = _order(ranges, np.ones((12, 12)))
+    assert share == 14 / 15
+
+
 def test_envelope_solve_matches_lu():
     rng = np.random.default_rng(2)
     for n in (1, 5, 40):

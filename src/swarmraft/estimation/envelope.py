@@ -26,9 +26,11 @@ def coupling_order(rng_, rw, order, pos, first):  # pragma: no cover - compiled
     """Reverse Cuthill-McKee order (in place on ``order`` (n,), and each drone's place in it on
     ``pos`` (n,)) of the drones coupled by a weighted, measured range in either direction,
     and for each drone in that order the first (lowest-placed) drone it is coupled with or
-    itself (in place on ``first`` (n,)): its block row's envelope. Returns the share of drone
-    pairs with a range measured either way, whatever its weight (the range graph's density: 1
-    for a complete graph, and with fewer than 2 drones).
+    itself (in place on ``first`` (n,)): its block row's envelope. Returns the share of pairs
+    with a range measured either way (whatever its weight) among the drones that have any:
+    `links.linked_share`'s density of the range graph (1 for a complete graph, and where
+    fewer than 2 drones range), so that drones outside the swarm (no range at all) do not
+    make a dense swarm sparse.
 
     The search starts, in each connected part, from a drone of least degree and visits
     neighbours by increasing degree, ties by index: the same order for the same graph."""
@@ -36,12 +38,15 @@ def coupling_order(rng_, rw, order, pos, first):  # pragma: no cover - compiled
     adj = np.zeros((n, n), dtype=np.bool_)
     deg = np.zeros(n, dtype=np.int64)
     pairs = 0
+    some = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         for j in range(i):
             mi = not np.isnan(rng_[i, j])
             mj = not np.isnan(rng_[j, i])
             if mi or mj:
                 pairs += 1
+                some[i] = True
+                some[j] = True
             if (mi and rw[i, j] > 0) or (mj and rw[j, i] > 0):
                 adj[i, j] = True
                 adj[j, i] = True
@@ -90,21 +95,25 @@ def coupling_order(rng_, rw, order, pos, first):  # pragma: no cover - compiled
             if adj[v, u] and pos[u] < lo:
                 lo = pos[u]
         first[p] = lo
-    return 1.0 if n < 2 else pairs / (n * (n - 1) / 2)
+    m = some.sum()
+    return 1.0 if m < 2 else pairs / (m * (m - 1) / 2)
 
 
 @njit(cache=True)
 def envelope_cholesky(L, first, nb):  # pragma: no cover - compiled
     """In place, the lower Cholesky factor of L[:3 nb, :3 nb], by 3x3 blocks: block row I
-    starts at block column first[I] (`coupling_order`); only the blocks from there to the
-    diagonal are read and written (those left of it are taken as zero and never touched;
-    of a diagonal block, only its lower triangle is read). Nine running sums per pair of
-    blocks, each in a fixed order. Returns the smallest pivot relative to its diagonal entry
-    (as `joint._cholesky`), or 0 if a pivot is not positive (then L is spoilt)."""
+    starts at block column first[I] <= I (`coupling_order`); only the blocks from there to
+    the diagonal are used (those left of it are taken as zero and never touched; a diagonal
+    block's entries above its diagonal are read into sums that are thrown away, whatever
+    they hold). Nine running sums per pair of blocks, each in a fixed order. Returns the
+    smallest pivot relative to its diagonal entry (as `joint._cholesky`), or 0 if a pivot is
+    not positive or a row's ``first`` lies past its diagonal (then L is spoilt)."""
     worst = 1.0
     for bi in range(nb):
         i = 3 * bi
         fi = first[bi]
+        if fi > bi:
+            return 0.0
         for bj in range(fi, bi + 1):
             j = 3 * bj
             s00 = L[i, j]

@@ -91,8 +91,26 @@ def _separation(xt, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - compiled
-    """Weighted sum of squared whitened residuals of one problem at positions xt (n, 3)."""
+def _ranged_pairs(rng_, rw, pi, pj):  # pragma: no cover - compiled
+    """The ranges a problem uses, in place on pi, pj (n * n,): each (i, j), i != j, with a
+    positive weight and a measured range, in row-major order (the order `_cost` and
+    `_normal_equations` add them in; a nan weight is no range, as for
+    `envelope.coupling_order`). Returns how many there are."""
+    n = rng_.shape[0]
+    k = 0
+    for i in range(n):
+        for j in range(n):
+            if i != j and rw[i, j] > 0 and not np.isnan(rng_[i, j]):
+                pi[k] = i
+                pj[k] = j
+                k += 1
+    return k
+
+
+@njit(cache=True)
+def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, pi, pj, E):  # pragma: no cover - compiled
+    """Weighted sum of squared whitened residuals of one problem at positions xt (n, 3), with
+    the ranges (pi[k], pj[k]), k < E, of `_ranged_pairs`."""
     n = xt.shape[0]
     c = 0.0
     for i in range(n):
@@ -108,20 +126,16 @@ def _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w):  # pragma: no cover - 
         if prior_w > 0 and np.isfinite(pr[i, 0]):
             for a in range(3):
                 c += prior_w * (xt[i, a] - pr[i, a]) ** 2
-    for i in range(n):
-        for j in range(n):
-            d = rng_[i, j]
-            w = rw[i, j]
-            if i == j or w <= 0 or np.isnan(d):
-                continue
-            r = _separation(xt, i, j)[0] - d
-            c += w * inv_s2 * r * r
+    for k in range(E):
+        i, j = pi[k], pj[k]
+        r = _separation(xt, i, j)[0] - rng_[i, j]
+        c += rw[i, j] * inv_s2 * r * r
     return c
 
 
 @njit(cache=True)
 def _normal_equations(
-    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower, pos, first
+    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, lower, pos, first, pi, pj, E
 ):  # pragma: no cover - compiled
     """Gauss-Newton normal equations H, g (in place) of one problem at xt, drone i's
     coordinates in rows (and columns) 3 pos[i] to 3 pos[i] + 2 of H (``pos`` the identity:
@@ -154,33 +168,29 @@ def _normal_equations(
             for a in range(3):
                 H[o + a, o + a] += prior_w
                 g[3 * i + a] += prior_w * (xt[i, a] - pr[i, a])
-    for i in range(n):
-        for j in range(n):
-            d = rng_[i, j]
-            w = rw[i, j]
-            if i == j or w <= 0 or np.isnan(d):
-                continue
-            dist, d0, d1, d2 = _separation(xt, i, j)
-            if dist == 0:
-                continue
-            u = (d0 / dist, d1 / dist, d2 / dist)
-            wr = w * inv_s2
-            r = dist - d
-            oi, oj = 3 * pos[i], 3 * pos[j]
-            lo, hi = (oi, oj) if oi > oj else (oj, oi)
-            for a in range(3):
-                g[3 * i + a] += wr * r * u[a]
-                g[3 * j + a] -= wr * r * u[a]
-                for b in range(3):
-                    v = wr * u[a] * u[b]
-                    if not lower or b <= a:
-                        H[oi + a, oi + b] += v
-                        H[oj + a, oj + b] += v
-                    if lower:
-                        H[lo + a, hi + b] -= v
-                    else:
-                        H[oi + a, oj + b] -= v
-                        H[oj + a, oi + b] -= v
+    for k in range(E):
+        i, j = pi[k], pj[k]
+        dist, d0, d1, d2 = _separation(xt, i, j)
+        if dist == 0:
+            continue
+        u = (d0 / dist, d1 / dist, d2 / dist)
+        wr = rw[i, j] * inv_s2
+        r = dist - rng_[i, j]
+        oi, oj = 3 * pos[i], 3 * pos[j]
+        lo, hi = (oi, oj) if oi > oj else (oj, oi)
+        for a in range(3):
+            g[3 * i + a] += wr * r * u[a]
+            g[3 * j + a] -= wr * r * u[a]
+            for b in range(3):
+                v = wr * u[a] * u[b]
+                if not lower or b <= a:
+                    H[oi + a, oi + b] += v
+                    H[oj + a, oj + b] += v
+                if lower:
+                    H[lo + a, hi + b] -= v
+                else:
+                    H[oi + a, oj + b] -= v
+                    H[oj + a, oi + b] -= v
 
 
 PIVOT_FLOOR = 1e-8
@@ -389,8 +399,10 @@ def levenberg_marquardt_kernel(
     where a pivot is small."""
     T, n, _ = x.shape
     N = 3 * n
-    # H, A and S are written before they are read (each solver reads only what its own
-    # normal equations wrote): left unset, a large swarm's pages are not zeroed on every call
+    # every entry of H, A and S that a solver uses is written before it is read (each reads
+    # only what its own normal equations wrote; `envelope.envelope_cholesky` reads and throws
+    # away a diagonal block's upper entries): left unset, a large swarm's pages are not
+    # zeroed on every call
     H = np.empty((N, N))
     g = np.zeros(N)
     A = np.empty((N, N))
@@ -408,11 +420,18 @@ def levenberg_marquardt_kernel(
     first = np.zeros(n, dtype=np.int64)
     own = np.arange(n)  # the drones' own order, and no envelope: for the dense solvers
     none = np.zeros(n, dtype=np.int64)
+    pi = np.zeros(n * n, dtype=np.int64)
+    pj = np.zeros(n * n, dtype=np.int64)
     for t in range(T):
         xt = x[t]
         rep, rng_, gw, rw, pr = reported[t], ranges[t], gnss_w[t], range_w[t], prior[t]
         sparse = coupling_order(rng_, rw, order, pos, first) <= SPARSE_SHARE
-        loose_count = _free_drones(rng_, gw, rw, free) if reduced and not sparse else 0
+        E = _ranged_pairs(rng_, rw, pi, pj)
+        if reduced and not sparse:
+            loose_count = _free_drones(rng_, gw, rw, free)
+        else:
+            loose_count = 0
+            free[:] = False  # nothing left over from the problem before
         loose = np.flatnonzero(free)
         m = 0
         for i in range(n):
@@ -420,17 +439,23 @@ def levenberg_marquardt_kernel(
                 for a in range(3):
                     idx[m] = 3 * i + a
                     m += 1
-        cost = _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w)
+        cost = _cost(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, pi, pj, E)
         lam = 1e-6
         conv = False
         for _ in range(iters):
             full = loose_count == 0 and not sparse  # H whole (else its lower triangle)
             if full:
-                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none)
+                _normal_equations(
+                    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none, pi, pj, E
+                )
             elif sparse:
-                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, S, g, True, pos, first)
+                _normal_equations(
+                    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, S, g, True, pos, first, pi, pj, E
+                )
             else:
-                _normal_equations(xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, True, own, none)
+                _normal_equations(
+                    xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, True, own, none, pi, pj, E
+                )
             diag = S if sparse else H  # the same diagonal, in the envelope order
             scale = 1.0
             for k in range(N):
@@ -449,7 +474,7 @@ def levenberg_marquardt_kernel(
                 if not done:
                     if not full:  # the whole matrix for LU, from here on in this iteration
                         _normal_equations(
-                            xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none
+                            xt, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, H, g, False, own, none, pi, pj, E
                         )
                         full = True
                     for a in range(N):
@@ -462,7 +487,7 @@ def levenberg_marquardt_kernel(
                     for a in range(3):
                         xn[i, a] = xt[i, a] + step[3 * i + a]
                         big = max(big, abs(step[3 * i + a]))
-                new_cost = _cost(xn, rep, rng_, gw, rw, G, inv_s2, pr, prior_w)
+                new_cost = _cost(xn, rep, rng_, gw, rw, G, inv_s2, pr, prior_w, pi, pj, E)
                 if new_cost <= cost:
                     accepted = True
                     break
@@ -517,7 +542,9 @@ def weighted_gauss_newton(
     enough that numpy's per-call overhead dominated). With ``full``, also returns the final
     cost (T,) and whether each problem converged (T,). ``reduced``: solve each step by
     eliminating the free drones (see `levenberg_marquardt_kernel`): faster, not the same bits;
-    for solves that only feed a test, not for an estimate a verdict reports."""
+    for solves that only feed a test, not for an estimate a verdict reports. On a sparse range
+    graph every solve, ``reduced`` or not, goes by the envelope Cholesky: LU's step in exact
+    arithmetic, not its bits (deterministic all the same)."""
     x = np.array(x0, dtype=float, copy=True)
     T, n, _ = x.shape
     G = gnss_information(gnss_cov)

@@ -110,7 +110,7 @@ def _in_range(truth: np.ndarray, max_range: float | None) -> np.ndarray:
     if max_range is None:
         return np.ones((S, n, n), dtype=bool)
     out = np.empty((S, n, n), dtype=bool)
-    step = max(1, 2**21 // (n * n))
+    step = max(1, 2**21 // max(1, n * n))
     for lo in range(0, S, step):
         out[lo : lo + step] = ~(true_distances(truth[lo : lo + step]) > max_range)
     return out

@@ -391,9 +391,10 @@ def levenberg_marquardt_kernel(
     near-collinear anchors stops there), or no step that lowers it.
 
     Each step solves the damped normal equations with LAPACK's LU (np.linalg.solve); on a
-    sparse range graph (at most SPARSE_SHARE of the drone pairs with a range measured)
-    by an envelope Cholesky in reverse Cuthill-McKee order (`_envelope_step`: 8x faster at
-    n = 65 with each drone ranging 7-21 others); otherwise with ``reduced`` by
+    sparse range graph (`envelope.coupling_order`'s share at most SPARSE_SHARE) by an
+    envelope Cholesky in reverse Cuthill-McKee order (`_envelope_step`: a solve 3x faster at
+    n = 65 with each drone ranging 7-21 others, 12x at n = 256: benchmarks/bench_envelope.py);
+    otherwise with ``reduced`` by
     `_reduced_solve` where some drones are free (2-3x faster at n = 17 with 8 drones free).
     Both are the same step as LU's in exact arithmetic, not the same bits, and fall back to LU
     where a pivot is small."""

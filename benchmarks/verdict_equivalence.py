@@ -8,6 +8,10 @@ the benchmark's own snapshots (bench_detectors.py: n = 17, f = 8, seed 7) are al
 one at a time (as the leader does). Detectors: paper (reference recovery and joint
 recovery), clique, fde, joint.
 
+With ``--sparse N``, also the first N snapshots of bench_sparse.py (n = 65, f = 16, 60 m
+range in a 150 m formation, seed 7) verified one at a time by `joint`, `fde` and `shape`:
+the sparse range graph's solver (save and check with the same options).
+
 Compared: flags, per-drone trusted set, status and per-drone status exactly; positions, hpl and vpl
 bit for bit (``exact``) or within ``--tol`` m with the same nan/inf pattern.
 
@@ -88,6 +92,27 @@ def bench_snapshots(steps: int) -> list[Snapshot]:
     ]
 
 
+SPARSE_DETECTORS = ("joint", "fde", "shape")
+
+
+def sparse_snapshots(steps: int) -> list[Snapshot]:
+    """The first ``steps`` snapshots of bench_sparse.py (n = 65, f = 16, seed 7)."""
+    config = build_config(
+        "realistic",
+        n=(65,),
+        f=(16,),
+        trials=steps,
+        ranging={"max_range": 60.0},
+        geometry="formation",
+        spacing=30.0,
+    )
+    d = draw(config, np.random.default_rng(7), steps, 65, 16)
+    return [
+        Snapshot(reported=d.reported[t], ranges=d.ranges[t], gnss_sigma=(1.5, 3.0), range_sigma=0.1)
+        for t in range(steps)
+    ]
+
+
 def fields(v: VerdictBatch) -> dict[str, np.ndarray]:
     n = v.faulty.shape[1]
     trusted = v.diagnostics.get("trusted", np.zeros(v.faulty.shape, dtype=bool))
@@ -117,10 +142,14 @@ def stacked(verdicts: list) -> dict[str, np.ndarray]:
 
 
 def collect(
-    trials: int, steps: int, detectors: tuple[str, ...] = tuple(DETECTORS), small: bool = False
+    trials: int,
+    steps: int,
+    detectors: tuple[str, ...] = tuple(DETECTORS),
+    small: bool = False,
+    sparse: int = 0,
 ) -> dict[str, np.ndarray]:
     """Every verdict field of every cell and detector, keyed 'cell/detector/field'
-    (``small``: only the cells of `SMALL`)."""
+    (``small``: only the cells of `SMALL`; ``sparse``: and that many sparse snapshots)."""
     out: dict[str, np.ndarray] = {}
     batches = list(cells(trials, **(SMALL if small else {})))
     for det in detectors:
@@ -132,6 +161,11 @@ def collect(
             verdicts = [verify(s, name, **DETECTORS[det]) for s in bench_snapshots(steps)]
             for k, arr in stacked(verdicts).items():
                 out[f"bench/{det}/{k}"] = arr
+    if sparse:
+        snaps = sparse_snapshots(sparse)
+        for det in SPARSE_DETECTORS:
+            for k, arr in stacked([verify(s, det) for s in snaps]).items():
+                out[f"sparse65/{det}/{k}"] = arr
     return out
 
 
@@ -185,8 +219,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=40, help="bench snapshots verified one at a time")
     ap.add_argument("--tol", type=float, default=0.0, help="m; 0: bit for bit")
     ap.add_argument("--small", action="store_true", help="9 cells (the reference of tests/test_verdicts.py)")
+    ap.add_argument("--sparse", type=int, default=0, help="sparse 65-drone snapshots verified one at a time")
     args = ap.parse_args(argv)
-    new = collect(args.trials, args.steps, small=args.small)
+    if args.sparse < 0:
+        ap.error("--sparse: need a count >= 0")
+    new = collect(args.trials, args.steps, small=args.small, sparse=args.sparse)
     if args.action == "save":
         np.savez_compressed(args.path, **new)
         print(f"saved {len(new)} arrays to {args.path}")

@@ -6,11 +6,13 @@ Cuthill-McKee, the coupled coordinates sit near the diagonal; the Cholesky facto
 symmetric positive definite matrix keeps its nonzeros inside the envelope (from each row's
 first nonzero column to the diagonal), so factorising only the envelope costs about
 ``N * b^2 / 2`` multiply-adds for a mean row width ``b`` instead of LU's ``2 N^3 / 3``:
-n = 65 drones 60 m apart at most in a 150 m formation have b of about 70 of N = 195.
+65 drones ranging up to 60 m in a 150 m formation have b of about 45 (a reach of about 14
+drones) of N = 195 (benchmarks/bench_envelope.py).
 
 `coupling_order` orders one problem's drones, `envelope_cholesky` factorises (by 3x3 blocks,
 a drone's coordinates together) and `envelope_solve` solves. Compiled, every sum in a fixed
-order: the same bits on every CPU, not those of the dense LU they replace.
+order (the partial sums are not left to the compiler or a BLAS to group); the bits are not
+those of the dense LU they replace.
 """
 
 from __future__ import annotations

@@ -21,11 +21,10 @@ import time
 import numpy as np
 from numba import njit
 
+from bench_sparse import formation_draw
 from swarmraft.estimation import joint
-from swarmraft.estimation.envelope import coupling_order
+from swarmraft.estimation.envelope import coupling_order, range_share
 from swarmraft.estimation.noise import gnss_information
-from swarmraft.experiments import build_config
-from swarmraft.experiments.trials import draw
 
 LAM, RIDGE = 1e-3, 1e-9  # a damping as the kernel's after a rejected step
 
@@ -63,29 +62,27 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
     for n in args.n:
-        config = build_config(
-            "realistic",
-            n=(n,),
-            f=(n // 4,),
-            trials=1,
-            ranging={"max_range": 60.0},
-            geometry="formation",
-            spacing=30.0,
-        )
-        d = draw(config, np.random.default_rng(7), 1, n, n // 4)
+        _, d = formation_draw(n, n // 4, 1)
         x, rep, rng = d.truth[0], d.reported[0], d.ranges[0]
         gw, rw = np.ones(n), np.ones((n, n))
         G = gnss_information(np.diag([1.5**2, 1.5**2, 3.0**2]))
         no_prior = np.full((n, 3), np.nan)
+        pi, pj = np.zeros(n * n, dtype=np.int64), np.zeros(n * n, dtype=np.int64)
+        E = joint._ranged_pairs(rng, rw, pi, pj)
         order, pos, first = (np.zeros(n, dtype=np.int64) for _ in range(3))
-        share = coupling_order(rng, rw, order, pos, first)
+        coupling_order(n, pi, pj, E, order, pos, first)
+        share = range_share(rng)
         N = 3 * n
         Hp, H, L = np.zeros((N, N)), np.zeros((N, N)), np.zeros((N, N))
         g, rhs, s_env, s_lu = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
         inv_s2 = 1.0 / 0.1**2
-        joint._normal_equations(x, rep, rng, gw, rw, G, inv_s2, no_prior, 0.0, Hp, g, True, pos, first)
+        joint._normal_equations(
+            x, rep, rng, gw, rw, G, inv_s2, no_prior, 0.0, Hp, g, True, pos, first, pi, pj, E
+        )
         own, none = np.arange(n), np.zeros(n, dtype=np.int64)
-        joint._normal_equations(x, rep, rng, gw, rw, G, inv_s2, no_prior, 0.0, H, g, False, own, none)
+        joint._normal_equations(
+            x, rep, rng, gw, rw, G, inv_s2, no_prior, 0.0, H, g, False, own, none, pi, pj, E
+        )
         k = max(1, 20000 // n)
         env = _timed(_envelope, (Hp, g, order, first, L, rhs, s_env), k, args.runs)
         lu = _timed(_lu, (H, g, s_lu), max(1, k // 10), args.runs)

@@ -30,6 +30,22 @@ TARGETS_MS = {"joint": (20.0, 100.0)}  # median, p99
 DETECTORS = ("paper", "fde", "joint", "shape", "clique")
 
 
+def formation_draw(n: int, f: int, steps: int, seed: int = 7, max_range: float = 60.0, spacing: float = 30.0):  # noqa: ANN201
+    """(config, draw) of this benchmark's world: ``steps`` snapshots of n drones, f attacked, on
+    a ``spacing`` m grid in two layers, no range beyond ``max_range`` m, realistic preset.
+    bench_envelope.py and verdict_equivalence.py --sparse use it too."""
+    config = build_config(
+        "realistic",
+        n=(n,),
+        f=(f,),
+        trials=steps,
+        ranging={"max_range": max_range},
+        geometry="formation",
+        spacing=spacing,
+    )
+    return config, draw(config, np.random.default_rng(seed), steps, n, f)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=40, help="snapshots per detector")
@@ -42,16 +58,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=7)
     args = ap.parse_args()
     n, f = args.n, args.f
-    config = build_config(
-        "realistic",
-        n=(n,),
-        f=(f,),
-        trials=args.steps,
-        ranging={"max_range": args.max_range},
-        geometry="formation",
-        spacing=args.spacing,
-    )
-    d = draw(config, np.random.default_rng(args.seed), args.steps, n, f)
+    config, d = formation_draw(n, f, args.steps, args.seed, args.max_range, args.spacing)
     meas = ~np.isnan(d.ranges) & ~np.eye(n, dtype=bool)
     deg = meas.sum(axis=2)
     side = (math.ceil(math.sqrt(math.ceil(n / 2))) - 1) * args.spacing  # `world.formation`'s grid

@@ -32,6 +32,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from bench_sparse import formation_draw
 from swarmraft.estimation import Snapshot, SnapshotBatch, VerdictBatch, verify, verify_batch
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import draw, snapshot_batch
@@ -97,16 +98,7 @@ SPARSE_DETECTORS = ("joint", "fde", "shape")
 
 def sparse_snapshots(steps: int) -> list[Snapshot]:
     """The first ``steps`` snapshots of bench_sparse.py (n = 65, f = 16, seed 7)."""
-    config = build_config(
-        "realistic",
-        n=(65,),
-        f=(16,),
-        trials=steps,
-        ranging={"max_range": 60.0},
-        geometry="formation",
-        spacing=30.0,
-    )
-    d = draw(config, np.random.default_rng(7), steps, 65, 16)
+    _, d = formation_draw(65, 16, steps)
     return [
         Snapshot(reported=d.reported[t], ranges=d.ranges[t], gnss_sigma=(1.5, 3.0), range_sigma=0.1)
         for t in range(steps)

@@ -7,8 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmraft.estimation.envelope import SPARSE_SHARE, coupling_order, envelope_cholesky, envelope_solve
-from swarmraft.estimation.joint import weighted_gauss_newton
+from swarmraft.estimation.envelope import (
+    SPARSE_SHARE,
+    coupling_order,
+    envelope_cholesky,
+    envelope_solve,
+    range_share,
+)
+from swarmraft.estimation.joint import _ranged_pairs, weighted_gauss_newton
 
 
 def _grid_swarm(rng, n=40, spacing=30.0, max_range=60.0):
@@ -24,9 +30,11 @@ def _grid_swarm(rng, n=40, spacing=30.0, max_range=60.0):
 
 def _order(ranges, weights):
     n = ranges.shape[0]
+    pi, pj = np.zeros(n * n, dtype=np.int64), np.zeros(n * n, dtype=np.int64)
+    E = _ranged_pairs(ranges, weights, pi, pj)
     order, pos, first = (np.zeros(n, dtype=np.int64) for _ in range(3))
-    share = coupling_order(ranges, weights, order, pos, first)
-    return share, order, pos, first
+    coupling_order(n, pi, pj, E, order, pos, first)
+    return range_share(ranges), order, pos, first
 
 
 def _coupled_matrix(rng, ranges, weights):

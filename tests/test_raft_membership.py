@@ -120,8 +120,7 @@ def test_a_learner_never_sends_a_vote_request():
 def test_a_learner_cannot_depose_its_leader():
     """A learner that finds its leader faulty (a refused entry, a censorship finding) keeps
     following it: it cannot elect another, and dropping the leader's appends would leave it
-    behind for good (a committee of one never promoted its learner: learners' false censorship
-    findings there)."""
+    behind for good (found in a committee of one, whose learner was then never promoted)."""
     c, k = with_learner()
     node = c.nodes[k]
     lead = node.lead

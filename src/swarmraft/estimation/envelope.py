@@ -9,7 +9,8 @@ first nonzero column to the diagonal), so factorising only the envelope costs ab
 65 drones ranging up to 60 m in a 150 m formation have b of about 45 (a reach of about 14
 drones) of N = 195 (benchmarks/bench_envelope.py).
 
-`coupling_order` orders one problem's drones, `envelope_cholesky` factorises (by 3x3 blocks,
+`range_share` says whether a problem's graph is sparse, `coupling_order` orders its
+drones, `envelope_cholesky` factorises (by 3x3 blocks,
 a drone's coordinates together) and `envelope_solve` solves. Compiled, every sum in a fixed
 order (the partial sums are not left to the compiler or a BLAS to group); the bits are not
 those of the dense LU they replace.
@@ -24,36 +25,42 @@ SPARSE_SHARE = 0.5  # a range graph with at most this share of its pairs ranged 
 
 
 @njit(cache=True)
-def coupling_order(rng_, rw, order, pos, first):  # pragma: no cover - compiled
-    """Reverse Cuthill-McKee order (in place on ``order`` (n,), and each drone's place in it on
-    ``pos`` (n,)) of the drones coupled by a weighted, measured range in either direction,
-    and for each drone in that order the first (lowest-placed) drone it is coupled with or
-    itself (in place on ``first`` (n,)): its block row's envelope. Returns the share of pairs
-    with a range measured either way (whatever its weight) among the drones that have any:
-    `links.linked_share`'s density of the range graph (1 for a complete graph, and where
-    fewer than 2 drones range), so that drones outside the swarm (no range at all) do not
-    make a dense swarm sparse.
-
-    The search starts, in each connected part, from a drone of least degree and visits
-    neighbours by increasing degree, ties by index: the same order for the same graph."""
+def range_share(rng_):  # pragma: no cover - compiled
+    """The density of one problem's range graph ``rng_`` (n, n; nan = not measured): the share
+    of pairs with a range measured either way among the drones that have any (1 for a
+    complete graph, and where fewer than 2 drones range), so that drones outside the swarm
+    (no range at all) do not make a dense swarm sparse. At most SPARSE_SHARE: sparse."""
     n = rng_.shape[0]
-    adj = np.zeros((n, n), dtype=np.bool_)
-    deg = np.zeros(n, dtype=np.int64)
     pairs = 0
     some = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         for j in range(i):
-            mi = not np.isnan(rng_[i, j])
-            mj = not np.isnan(rng_[j, i])
-            if mi or mj:
+            if not np.isnan(rng_[i, j]) or not np.isnan(rng_[j, i]):
                 pairs += 1
                 some[i] = True
                 some[j] = True
-            if (mi and rw[i, j] > 0) or (mj and rw[j, i] > 0):
-                adj[i, j] = True
-                adj[j, i] = True
+    m = some.sum()
+    return 1.0 if m < 2 else pairs / (m * (m - 1) / 2)
+
+
+@njit(cache=True)
+def coupling_order(n, pi, pj, E, order, pos, first):  # pragma: no cover - compiled
+    """Reverse Cuthill-McKee order (in place on ``order`` (n,), and each drone's place in it on
+    ``pos`` (n,)) of n drones coupled by the ranges (pi[k], pj[k]), k < E (either direction:
+    `joint._ranged_pairs`), and for each drone in that order the first (lowest-placed) drone
+    it is coupled with or itself (in place on ``first`` (n,)): its block row's envelope.
+
+    The search starts, in each connected part, from a drone of least degree and visits
+    neighbours by increasing degree, ties by index: the same order for the same graph."""
+    adj = np.zeros((n, n), dtype=np.bool_)
+    for k in range(E):
+        adj[pi[k], pj[k]] = True
+        adj[pj[k], pi[k]] = True
+    deg = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        for j in range(n):
+            if adj[i, j]:
                 deg[i] += 1
-                deg[j] += 1
     seen = np.zeros(n, dtype=np.bool_)
     cm = np.empty(n, dtype=np.int64)
     count = 0
@@ -97,8 +104,6 @@ def coupling_order(rng_, rw, order, pos, first):  # pragma: no cover - compiled
             if adj[v, u] and pos[u] < lo:
                 lo = pos[u]
         first[p] = lo
-    m = some.sum()
-    return 1.0 if m < 2 else pairs / (m * (m - 1) / 2)
 
 
 @njit(cache=True)

@@ -14,7 +14,13 @@ import numpy as np
 from numba import njit
 from scipy.special import chdtri
 
-from swarmraft.estimation.envelope import SPARSE_SHARE, coupling_order, envelope_cholesky, envelope_solve
+from swarmraft.estimation.envelope import (
+    SPARSE_SHARE,
+    coupling_order,
+    envelope_cholesky,
+    envelope_solve,
+    range_share,
+)
 from swarmraft.estimation.noise import NoiseModel, gnss_information
 from swarmraft.estimation.trust_region import linear_multilateration
 
@@ -94,8 +100,8 @@ def _separation(xt, i, j):  # pragma: no cover - compiled
 def _ranged_pairs(rng_, rw, pi, pj):  # pragma: no cover - compiled
     """The ranges a problem uses, in place on pi, pj (n * n,): each (i, j), i != j, with a
     positive weight and a measured range, in row-major order (the order `_cost` and
-    `_normal_equations` add them in; a nan weight is no range, as for
-    `envelope.coupling_order`). Returns how many there are."""
+    `_normal_equations` add them in, and the couplings of `envelope.coupling_order`; a nan
+    weight is no range). Returns how many there are."""
     n = rng_.shape[0]
     k = 0
     for i in range(n):
@@ -391,7 +397,7 @@ def levenberg_marquardt_kernel(
     near-collinear anchors stops there), or no step that lowers it.
 
     Each step solves the damped normal equations with LAPACK's LU (np.linalg.solve); on a
-    sparse range graph (`envelope.coupling_order`'s share at most SPARSE_SHARE) by an
+    sparse range graph (`envelope.range_share` at most SPARSE_SHARE) by an
     envelope Cholesky in reverse Cuthill-McKee order (`_envelope_step`: a solve 3x faster at
     n = 65 with each drone ranging 7-21 others, 12x at n = 256: benchmarks/bench_envelope.py);
     otherwise with ``reduced`` by
@@ -426,8 +432,10 @@ def levenberg_marquardt_kernel(
     for t in range(T):
         xt = x[t]
         rep, rng_, gw, rw, pr = reported[t], ranges[t], gnss_w[t], range_w[t], prior[t]
-        sparse = coupling_order(rng_, rw, order, pos, first) <= SPARSE_SHARE
         E = _ranged_pairs(rng_, rw, pi, pj)
+        sparse = range_share(rng_) <= SPARSE_SHARE
+        if sparse:  # the envelope's order, only where it is used
+            coupling_order(n, pi, pj, E, order, pos, first)
         if reduced and not sparse:
             loose_count = _free_drones(rng_, gw, rw, free)
         else:

@@ -43,7 +43,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from pydantic import BaseModel
 
-from swarmraft.estimation.envelope import SPARSE_SHARE
+from swarmraft.estimation.envelope import SPARSE_SHARE, range_share
 from swarmraft.estimation.joint import weighted_gauss_newton
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration
@@ -104,13 +104,8 @@ def sparse_graph(ranges: np.ndarray) -> np.ndarray:
 
 def linked_share(ranges: np.ndarray) -> np.ndarray:
     """Per trial (T,), the share of pairs of drones with a range either way, among the drones
-    that range with someone (1 where fewer than two do)."""
-    n = ranges.shape[1]
-    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
-    linked = meas | np.swapaxes(meas, 1, 2)
-    m = linked.any(axis=2).sum(axis=1)
-    pairs = m * (m - 1)
-    return np.where(pairs > 0, linked.sum(axis=(1, 2)) / np.maximum(pairs, 1), 1.0)
+    that range with someone (1 where fewer than two do): `envelope.range_share` of each."""
+    return np.array([range_share(np.ascontiguousarray(r, float)) for r in ranges], dtype=float)
 
 
 def _geodesic(d: np.ndarray) -> np.ndarray:

@@ -61,6 +61,10 @@ def main() -> None:
     ap.add_argument("--n", type=int, nargs="+", default=[65, 256])
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
+    if args.runs < 1:
+        ap.error("--runs: need at least 1")
+    if min(args.n) < 4:
+        ap.error("--n: every size needs at least 4 drones (n // 4 of them attacked)")
     for n in args.n:
         _, d = formation_draw(n, n // 4, 1)
         x, rep, rng = d.truth[0], d.reported[0], d.ranges[0]

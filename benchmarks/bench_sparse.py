@@ -24,6 +24,7 @@ import numpy as np
 from swarmraft.estimation import Snapshot, verify
 from swarmraft.experiments import build_config
 from swarmraft.experiments.calibration import detector_settings
+from swarmraft.experiments.config import ConfigError
 from swarmraft.experiments.trials import draw
 
 TARGETS_MS = {"joint": (20.0, 100.0)}  # median, p99
@@ -58,7 +59,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=7)
     args = ap.parse_args()
     n, f = args.n, args.f
-    config, d = formation_draw(n, f, args.steps, args.seed, args.max_range, args.spacing)
+    if args.steps < 1 or args.runs < 1:
+        ap.error("--steps and --runs: need at least 1")
+    try:
+        config, d = formation_draw(n, f, args.steps, args.seed, args.max_range, args.spacing)
+    except ConfigError as exc:
+        ap.error(str(exc))
     meas = ~np.isnan(d.ranges) & ~np.eye(n, dtype=bool)
     deg = meas.sum(axis=2)
     side = (math.ceil(math.sqrt(math.ceil(n / 2))) - 1) * args.spacing  # `world.formation`'s grid

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -215,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.sparse < 0:
         ap.error("--sparse: need a count >= 0")
+    if args.action == "check" and not Path(args.path).is_file():
+        ap.error(f"{args.path}: no such file (make it first with `save` and the same options)")
     new = collect(args.trials, args.steps, small=args.small, sparse=args.sparse)
     if args.action == "save":
         np.savez_compressed(args.path, **new)

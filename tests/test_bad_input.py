@@ -85,6 +85,14 @@ def test_n_below_3_is_refused_not_dropped(cwd):
     assert "got 1, 2" in line
 
 
+def test_a_known_set_needs_a_detector_with_a_noise_model(cwd):
+    fails_cleanly(
+        ["sweep", "--known-set", "--n", "5", "--trials", "5", "--out", "o"],
+        "error: known_set: detector 'paper' has no noise model to estimate with; use clique, fde",
+        cwd,
+    )
+
+
 def test_calibrate_needs_3_drones(cwd):
     fails_cleanly(
         ["calibrate", "--n", "2", "--trials", "10"], "error: --n: every swarm size must be >= 3", cwd

@@ -134,3 +134,18 @@ def test_efficiency_over_ok_verdicts_leaves_the_withheld_ones_out():
         assert row[f"{g}_efficiency_ok"] == pytest.approx(1.0)
         assert row[f"{g}_efficiency"] == pytest.approx(np.sqrt(102 / 3))
         assert row[f"{g}_bound_excluded"] == 1
+
+
+def test_a_known_set_sweep_gives_the_estimator_the_true_honest_set(tmp_path):
+    """`--known-set`: every attacker flagged, no honest drone, and the attacked drones near the
+    bound; the same trials as the detector's own sweep (its identification is below 1)."""
+    cfg = small("realistic", n=(9,), f=(4,), trials=200, detector="joint")
+    known = run_sweep(cfg.model_copy(update={"known_set": True}), tmp_path / "known", workers=1).cells
+    found = run_sweep(cfg, tmp_path / "found", workers=1).cells
+    assert known["identification_rate"][0] == 1.0
+    assert known["false_positive_rate"][0] == 0.0
+    assert known["attacked_efficiency"][0] <= 1.1
+    assert found["identification_rate"][0] < 1.0
+    assert known["baseline_mean"][0] == found["baseline_mean"][0]  # the same draws
+    with pytest.raises(ConfigError, match="^known_set: detector 'paper' has no noise model"):
+        small("realistic", known_set=True)

@@ -63,6 +63,13 @@ from swarmraft.cli.tables import (
     type=click.Choice(ATTACK_NAMES),
     help="attack [default jump]",
 )
+@click.option(
+    "--known-set",
+    is_flag=True,
+    default=None,
+    help="give the detector the true honest set instead of detecting it: its estimate and "
+    "assessment with perfect detection (clique, fde, joint, shape).",
+)
 @WORKERS
 @SCHEDULER
 @click.option(
@@ -81,6 +88,7 @@ def sweep(
     detector,
     params,
     attack,
+    known_set,
     workers,
     scheduler,
     out,
@@ -107,6 +115,7 @@ def sweep(
             "detector": detector,
             "detector_params": key_values(params) or None,
             "attack": {"name": attack} if attack else None,
+            "known_set": known_set,
         },
     )
     out = out or Path("results") / config.preset
@@ -114,7 +123,8 @@ def sweep(
     check_resume(out, config)
     cells = config.cells()
     console.print(
-        f"sweep: preset {config.preset}, detector {config.detector}, attack "
+        f"sweep: preset {config.preset}, detector {config.detector}"
+        f"{' given the true honest set' if config.known_set else ''}, attack "
         f"{config.attack.name}, {len(cells)} cells x {config.trials} trials, "
         f"seed {config.seed} -> {out}",
         soft_wrap=True,

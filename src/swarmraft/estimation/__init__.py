@@ -14,6 +14,7 @@ from swarmraft.estimation.registry import (
     register,
     verify,
     verify_batch,
+    verify_given,
 )
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
@@ -29,4 +30,5 @@ __all__ = [
     "register",
     "verify",
     "verify_batch",
+    "verify_given",
 ]

@@ -480,6 +480,41 @@ def finish(
         trusted[rows] &= other
         est, a = _rejudged(prob, est, a, rows, trusted)
         final = worst_status(a.status, status)
+    return _verdicts(a, trusted, faulty, status, final, diagnostics)
+
+
+def given_set(batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray) -> VerdictBatch:
+    """The verdicts of a batch whose trusted set (T, n) is given, not detected: the robust
+    estimate and the assessment every statistical detector ends with (statuses, protection
+    levels, undetermined drones at nan), without the repair and the rival search (the set is
+    not in question). With the true honest set, what the estimator achieves when detection is
+    perfect: `swarmraft sweep --known-set`."""
+    noise = NoiseModel.of(batch, p, "known set")
+    prob = _Problem(
+        np.asarray(batch.reported, float),
+        np.asarray(batch.ranges, float),
+        noise,
+        p,
+        None if batch.prior is None else np.asarray(batch.prior, float),
+        batch.prior_sigma,
+        (),
+    )
+    trusted = np.asarray(trusted, bool).copy()
+    _, a = prob.judge(np.arange(trusted.shape[0]), trusted)
+    status = np.full(trusted.shape[0], "ok", dtype=object)
+    return _verdicts(a, trusted, ~trusted, status, a.status, None)
+
+
+def _verdicts(
+    a: Assessment,
+    trusted: np.ndarray,
+    faulty: np.ndarray,
+    status: np.ndarray,
+    final: np.ndarray,
+    diagnostics: dict[str, np.ndarray] | None,
+) -> VerdictBatch:
+    """The `VerdictBatch` of an assessment: ``status`` (T,) what the detector decided before
+    it (``alarm`` when exclusion was exhausted), ``final`` the verdict's status."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
     diag = {"sigma": a.sigma, "trusted": trusted, "alarm_cause": cause, **(diagnostics or {})}

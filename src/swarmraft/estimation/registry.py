@@ -13,9 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from swarmraft.estimation.blas import one_blas_thread
+from swarmraft.estimation.integrity import IntegrityParams, given_set
 from swarmraft.estimation.links import run_screened
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
@@ -89,6 +91,29 @@ def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -
     p = detector_params(detector, **params)
     with one_blas_thread():
         return run_screened(get_detector(detector).run, batch, p)
+
+
+def check_known_set(detector: str) -> None:
+    """A one-line ValueError unless ``detector`` has a noise model to estimate with when its
+    trusted set is given (`verify_given`): its parameters are `IntegrityParams`."""
+    if not issubclass(get_detector(detector).params, IntegrityParams):
+        known = ", ".join(n for n in detector_names() if issubclass(get_detector(n).params, IntegrityParams))
+        raise ValueError(f"known_set: detector {detector!r} has no noise model to estimate with; use {known}")
+
+
+def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **params: Any) -> VerdictBatch:
+    """The verdicts of a batch with its trusted set (T, n) given instead of detected: the
+    robust estimate and assessment of a statistical detector (`integrity.given_set`), with
+    its parameters, on ranges screened as the detector screens them. A detector without a
+    noise model (``paper``) is a one-line ValueError."""
+    check_known_set(detector)
+    p = detector_params(detector, **params)
+    trusted = np.asarray(trusted, bool)
+    want = np.shape(batch.reported)[:2]
+    if trusted.shape != want:
+        raise ValueError(f"known_set: trusted set of shape {trusted.shape}, the batch has {want}")
+    with one_blas_thread():
+        return run_screened(lambda b, q: given_set(b, q, trusted), batch, p)
 
 
 def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:

@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from swarmraft.estimation.registry import detector_params, one_line
+from swarmraft.estimation.registry import check_known_set, detector_params, one_line
 from swarmraft.world import (
     AreaSpoof,
     Attack,
@@ -163,6 +163,11 @@ class SweepConfig(_Strict):
     calibrate: bool = Field(False, description="set tau/epsilon by calibration (III.E)")
     calibration_trials: int = Field(2000, ge=10)
     chunk_size: int = Field(1000, ge=1, description="trials per task (fixes the seeds)")
+    known_set: bool = Field(
+        False,
+        description="give the detector's estimator the true honest set instead of detecting it "
+        "(its robust estimate and assessment): what it achieves with perfect detection",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> SweepConfig:
@@ -179,6 +184,8 @@ class SweepConfig(_Strict):
             detector_params(self.detector, **self.detector_params)
         except ValueError as exc:
             raise ValueError(f"detector_params: {exc}") from None
+        if self.known_set:
+            check_known_set(self.detector)
         return self
 
     def cells(self) -> list[tuple[int, int]]:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmraft.estimation import SnapshotBatch, VerdictBatch, verify_batch
+from swarmraft.estimation import SnapshotBatch, VerdictBatch, verify_batch, verify_given
 from swarmraft.estimation.bounds import CHI2_3DOF_999, error_statistics, gnss_covariance, swarm_crb
 from swarmraft.experiments.config import SweepConfig
 from swarmraft.world import choose_attackers, flat_layer, formation, near_line, uniform_cube
@@ -180,7 +180,11 @@ def run_chunk(
     calibrated thresholds already filled in). Returns columns of `TRIAL_COLUMNS`."""
     rng = np.random.default_rng(chunk_seed(config.seed, n, f, chunk))
     d = draw(config, rng, trials, n, f)
-    v = verify_batch(snapshot_batch(config, d), config.detector, **params)
+    batch = snapshot_batch(config, d)
+    if config.known_set:  # the true honest set given: the estimator with perfect detection
+        v = verify_given(batch, ~d.attackers, config.detector, **params)
+    else:
+        v = verify_batch(batch, config.detector, **params)
     out = score(d, v.positions, v.faulty) | bound_metrics(config, d, v.positions) | integrity_metrics(d, v)
     first = chunk * config.chunk_size
     out.update(

@@ -60,3 +60,27 @@ def test_the_memo_keeps_only_the_newest_checks() -> None:
     assert len(keys.checked) == limit
     calls = keys.public[1].calls
     assert keys.verify(first) and keys.public[1].calls == calls + 1  # forgotten: checked again
+
+
+def test_a_report_body_is_encoded_once_and_a_replaced_report_encodes_its_own() -> None:
+    keys = keyring()
+    good = report(keys)
+    body = good.body()
+    assert good.body() is body  # kept, not encoded again
+    assert Report.decode(good.encode()).body() == body  # what was signed is what is sent
+    moved = replace(good, position=np.array([1.0, 2.0, 3.5]))
+    assert moved.body() != body and moved.body()[:12] == body[:12]  # same header, new position
+
+
+def test_a_drone_does_not_check_its_own_signature_again_unless_its_keys_disagree(monkeypatch) -> None:
+    import swarmraft.protocol.signing as signing
+
+    calls = []
+    real = signing._check
+    monkeypatch.setattr(signing, "_check", lambda *a: calls.append(1) or real(*a))
+    keys = Keyring.generate(3, np.random.default_rng(5))
+    own = report(keys, drone=1)
+    assert keys.verify(own) and calls == []  # remembered when signed
+    # a public key that is not the private key's: nothing remembered, the check refuses
+    wrong = Keyring(keys.private, {**keys.public, 1: keys.public[2]})
+    assert not wrong.verify(report(wrong, drone=1)) and calls == [1]

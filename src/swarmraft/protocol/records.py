@@ -46,7 +46,16 @@ class Report:
     ins: np.ndarray | None = None
 
     def body(self) -> bytes:
-        """The signed bytes."""
+        """The signed bytes, encoded on the first call and kept: a report is a value (its
+        arrays are not changed once it is made; `dataclasses.replace` makes a new one). A
+        voter's audit reads them about 50 times a step (digest, signatures, memo keys)."""
+        kept = self.__dict__.get("_body")
+        if kept is None:
+            kept = self._encode_body()
+            object.__setattr__(self, "_body", kept)
+        return kept
+
+    def _encode_body(self) -> bytes:
         inn, drift, ins = self.innovation is not None, self.drift is not None, self.ins is not None
         parts = inn | drift << 1 | ins << 2
         head = _REPORT_HEAD.pack(self.step, self.drone, _SOURCES.index(self.source), parts, len(self.ranges))

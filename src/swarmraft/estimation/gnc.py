@@ -30,6 +30,7 @@ from swarmraft.estimation.joint import (
 )
 from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whitener
 from swarmraft.estimation.registry import register
+from swarmraft.estimation.set_search import search_alarms
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 
@@ -168,6 +169,12 @@ class JointParams(IntegrityParams):
     mu_factor: float = Field(2.0, gt=1, description="GNC: divide mu by this each round (1.4 in Yang et al.)")
     inner: int = Field(1, ge=1, description="GNC: Gauss-Newton iterations per round")
     flag_chi2: float = Field(CHI2_3DOF_999, gt=0, description="flag GNSS residual^2 above")
+    set_search: int = Field(
+        0,
+        ge=0,
+        description="an alarm verdict tries every trusted set leaving out at most f_max drones, "
+        "smallest exclusion first, where that is at most this many sets (set_search.py); 0: off",
+    )
 
 
 @register("joint", JointParams, "robust joint estimate (GNC, Geman-McClure) of all positions")
@@ -236,4 +243,4 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         idx = np.flatnonzero(bad)[better]
         for name in ("positions", "faulty", "status", "drone_status", "hpl", "vpl"):
             getattr(v, name)[idx] = getattr(alt, name)[better]
-    return v
+    return search_alarms(batch, p, noise, v, f_max, p.set_search)

@@ -1,0 +1,48 @@
+"""The exhaustive set search of alarm verdicts (`estimation.set_search`, `joint`'s
+``set_search``): smallest exclusion first, one passing set is the answer, several are
+unidentifiable, none leaves the alarm."""
+
+import math
+
+import numpy as np
+import pytest
+
+from swarmraft.estimation import verify_batch
+from swarmraft.estimation.set_search import sets_leaving_out
+from swarmraft.experiments import build_config
+from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
+
+
+def test_sets_leaving_out_are_every_set_once():
+    for n, k in ((5, 0), (5, 2), (9, 4)):
+        sets = sets_leaving_out(n, k)
+        assert sets.shape == (math.comb(n, k), n)
+        assert ((~sets).sum(axis=1) == k).all()
+        assert len({s.tobytes() for s in sets}) == len(sets)
+
+
+@pytest.fixture(scope="module")
+def alarms():
+    """Trials 1 and 95 of the sweep's (9, 4) realistic cell (seed 2025, chunk 0): `joint`
+    raises an alarm in both (README, "Integrity, measured")."""
+    cfg = build_config("realistic", n=(9,), f=(4,), trials=1000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, 0)), 1000, 9, 4)
+    rows = np.array([1, 95])
+    return snapshot_batch(cfg, d).subset(rows), d.attackers[rows]
+
+
+def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(alarms):
+    batch, attackers = alarms
+    assert (verify_batch(batch, "joint").status == "alarm").all()
+    v = verify_batch(batch, "joint", set_search=300)
+    # trial 1: only the true honest set passes among the sets leaving out at most 4
+    assert v.status[0] == "ok" and (v.faulty[0] == attackers[0]).all()
+    # trial 95: several sets pass (the true one among them): no guess
+    assert v.status[1] == "unidentifiable"
+    assert not (v.faulty[1] & ~attackers[1]).any()  # no honest drone accused
+
+
+def test_a_search_beyond_its_cap_leaves_the_alarm(alarms):
+    batch, _ = alarms
+    # 1 + 9 + 36 + 84 = 130 sets reach 3 out; the true sets leave 4 out (126 more)
+    assert (verify_batch(batch, "joint", set_search=130).status == "alarm").all()

@@ -1,0 +1,54 @@
+"""What `joint`'s ``set_search`` costs a leader step that ends in an alarm: the first
+``--alarms`` alarm trials of the sweep's realistic (n, f) cell (seed 2025, chunk 0), each
+verified alone with the search off and on (CPU ms, best of ``--repeat``), with the status
+the search gives. No target of its own: a mission's step has 100 ms at 10 Hz.
+
+Run: .venv/bin/python benchmarks/bench_set_search.py [--n 9 --f 4 --alarms 4 --search 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from swarmraft.estimation import verify_batch
+from swarmraft.experiments import build_config
+from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
+
+
+def cpu_ms(fn, repeat: int) -> tuple[float, object]:  # noqa: ANN001
+    best, out = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.process_time()
+        out = fn()
+        best = min(best, (time.process_time() - t0) * 1000)
+    return best, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=9)
+    ap.add_argument("--f", type=int, default=4)
+    ap.add_argument("--alarms", type=int, default=4)
+    ap.add_argument("--search", type=int, default=300, help="set_search (sets at most)")
+    ap.add_argument("--repeat", type=int, default=3)
+    a = ap.parse_args()
+    if not (a.n >= 3 and 1 <= a.f <= (a.n - 1) // 2 and a.alarms >= 1 and a.search >= 1 and a.repeat >= 1):
+        ap.error("need n >= 3, 1 <= f <= (n-1)//2, and --alarms, --search, --repeat >= 1")
+    cfg = build_config("realistic", n=(a.n,), f=(a.f,), trials=1000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, a.n, a.f, 0)), 1000, a.n, a.f)
+    batch = snapshot_batch(cfg, d)
+    alarms = np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[: a.alarms]
+    print(f"joint at ({a.n}, {a.f}), realistic: {len(alarms)} alarm trials, CPU ms (best of {a.repeat})")
+    print(f"{'trial':>6} {'off':>8} {f'set_search={a.search}':>16}  status")
+    for t in alarms:
+        one = batch.subset(np.array([t]))
+        off, _ = cpu_ms(lambda one=one: verify_batch(one, "joint"), a.repeat)
+        on, v = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=a.search), a.repeat)
+        print(f"{t:>6} {off:8.1f} {on:16.1f}  {v.status[0]}")
+
+
+if __name__ == "__main__":
+    main()

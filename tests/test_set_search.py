@@ -44,5 +44,16 @@ def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(a
 
 def test_a_search_beyond_its_cap_leaves_the_alarm(alarms):
     batch, _ = alarms
-    # 1 + 9 + 36 + 84 = 130 sets reach 3 out; the true sets leave 4 out (126 more)
-    assert (verify_batch(batch, "joint", set_search=130).status == "alarm").all()
+    # the whole search is 1 + 9 + 36 + 84 + 126 = 256 sets
+    assert (verify_batch(batch, "joint", set_search=255).status == "alarm").all()
+
+
+def test_an_explanation_that_moves_drones_beyond_the_levels_is_a_rival():
+    """Trial 9,147 of (9, 4) (chunk 9): the smallest explanation leaves 3 drones out and
+    trusts 2 spoofers (drones 66 m off); the true set, 4 out and `degenerate`, places them
+    elsewhere: unidentifiable, not ok (ok before the rival rule)."""
+    cfg = build_config("realistic", n=(9,), f=(4,), trials=10000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, 9)), 1000, 9, 4)
+    v = verify_batch(snapshot_batch(cfg, d).subset(np.array([147])), "joint", set_search=300)
+    assert v.status[0] == "unidentifiable"
+    assert not (v.faulty[0] & ~d.attackers[147]).any()

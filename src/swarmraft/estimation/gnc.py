@@ -173,7 +173,7 @@ class JointParams(IntegrityParams):
         0,
         ge=0,
         description="an alarm verdict tries every trusted set leaving out at most f_max drones, "
-        "smallest exclusion first, where that is at most this many sets (set_search.py); 0: off",
+        "smallest exclusion first, where all of them are at most this many sets (set_search.py); 0: off",
     )
 
 

@@ -3,13 +3,18 @@
 A detector's alarm says its chosen set fails its tests and exclusion is exhausted. Where the
 swarm is small, every set that leaves out at most ``f_max`` drones can be tried instead, as
 RAIM's exhaustive fault detection and exclusion does: for k = 0, 1, ..., ``f_max`` drones
-left out, each of the C(n, k) sets is given to the estimator (`integrity.given_set`); at the
-smallest k where some set passes every test, one passing set is the answer (judged again by
-`integrity.finish`, rivals and all), several are ``unidentifiable`` (estimated from the
-drones every passing set trusts, only the drones outside all of them flagged), and where no
-set passes up to ``f_max`` the alarm stands. The search stops, leaving the alarm, before the
-sets tried would exceed ``cap``: the count grows as C(n, f_max) (126 at n = 9, 1,716 at 13,
-24,310 at 17).
+left out, each of the C(n, k) sets is given to the estimator (`integrity.given_set`); a set
+explains the data where it passes its tests (status ``ok``, or ``degenerate`` where the
+geometry leaves a drone unfixed). At the smallest k with an explanation, one explanation is
+the answer (judged again by `integrity.finish`, rivals and all), several are
+``unidentifiable`` (estimated from the drones all of them trust, only the drones outside
+all of them flagged), and where no set explains the data up to ``f_max`` the alarm stands.
+An ``ok`` answer becomes ``unidentifiable`` where any other explanation (more drones left
+out included: no margin) places some drone beyond its protection levels: at (9, 4) trial
+9,147 the smallest explanation left out 3 drones, trusted 2 spoofers and placed drones 66 m
+off, and the true set (4 out, ``degenerate``) was the rival that showed it. The search runs
+only where all its sets, the sum of C(n, k) for k up to ``f_max``, are at most ``cap``: 256
+at n = 9, 4,096 at 13, 65,536 at 17.
 
 At (9, 4) (realistic, jumps of 10-100 m) `joint`'s alarms are 4 % of the trials and 65 % of
 the attacked drones' squared error: `benchmarks/alarm_sets.py`, and README, "Integrity,
@@ -65,20 +70,42 @@ def search_alarms(
 def _search(
     batch: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, t: int, n: int, f_max: int, cap: int
 ) -> VerdictBatch | None:
-    """The search's verdict for trial t, or None where no set passes within ``cap`` sets."""
-    tried = 0
+    """The search's verdict for trial t, or None where no set passes or the search would try
+    more than ``cap`` sets."""
+    if sum(math.comb(n, k) for k in range(f_max + 1)) > cap:
+        return None
     one = batch.subset(np.array([t]))
-    for k in range(f_max + 1):
-        tried += math.comb(n, k)
-        if tried > cap:
-            return None
-        sets = sets_leaving_out(n, k)
-        g = given_set(batch.subset(np.full(len(sets), t)), p, sets)
-        passing = sets[g.status == "ok"]
-        if len(passing) == 1:
-            return finish(one, p, noise, passing)
-        if len(passing) > 1:
-            common = passing.all(axis=0)[None]
-            outside = ~passing.any(axis=0)[None]
-            return finish(one, p, noise, common, status=np.array(["unidentifiable"]), faulty=outside)
-    return None
+    sets = np.concatenate([sets_leaving_out(n, k) for k in range(f_max + 1)])
+    g = given_set(batch.subset(np.full(len(sets), t)), p, sets)
+    # a set explains the data when it passes its tests: `ok`, or `degenerate` where the
+    # geometry leaves some drone unfixed (an explanation all the same)
+    explains = g.status != "alarm"
+    if not explains.any():
+        return None
+    left_out = (~sets).sum(axis=1)
+    first = explains & (left_out == left_out[explains].min())
+    if first.sum() > 1:
+        return _unidentifiable(one, p, noise, sets[first])
+    w = finish(one, p, noise, sets[first])
+    if w.status[0] != "ok":
+        return w
+    # every other explanation is a rival where it places some drone beyond the answer's
+    # levels: two explanations with at most f_max attackers (a set with more drones left
+    # out is one too: no margin here, the search answers alarms only)
+    d = g.positions[explains] - w.positions[0]
+    with np.errstate(invalid="ignore"):
+        beyond = (np.hypot(d[..., 0], d[..., 1]) > w.hpl[0]) | (np.abs(d[..., 2]) > w.vpl[0])
+    rivals = sets[explains][beyond.any(axis=1)]
+    if len(rivals):
+        return _unidentifiable(one, p, noise, np.concatenate([sets[first], rivals]))
+    return w
+
+
+def _unidentifiable(
+    one: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, sets: np.ndarray
+) -> VerdictBatch:
+    """Several trusted sets explain trial ``one``: estimated from the drones all of them
+    trust, only the drones outside all of them flagged."""
+    common = sets.all(axis=0)[None]
+    outside = ~sets.any(axis=0)[None]
+    return finish(one, p, noise, common, status=np.array(["unidentifiable"]), faulty=outside)

@@ -451,15 +451,7 @@ def finish(
       do not decide between them.
       The verdict becomes ``unidentifiable``, estimated from the drones both sets trust,
       with only the drones outside both flagged."""
-    prob = _Problem(
-        np.asarray(batch.reported, float),
-        np.asarray(batch.ranges, float),
-        noise,
-        p,
-        None if batch.prior is None else np.asarray(batch.prior, float),
-        batch.prior_sigma,
-        starts,
-    )
+    prob = _Problem.of(batch, noise, p, starts)
     T = prob.reported.shape[0]
     faulty = ~trusted if faulty is None else faulty.copy()
     status = np.full(T, "ok", dtype=object) if status is None else np.asarray(status, dtype=object).copy()
@@ -489,16 +481,7 @@ def given_set(batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray) -> 
     levels, undetermined drones at nan), without the repair and the rival search (the set is
     not in question). With the true honest set, what the estimator achieves when detection is
     perfect: `swarmraft sweep --known-set`."""
-    noise = NoiseModel.of(batch, p, "known set")
-    prob = _Problem(
-        np.asarray(batch.reported, float),
-        np.asarray(batch.ranges, float),
-        noise,
-        p,
-        None if batch.prior is None else np.asarray(batch.prior, float),
-        batch.prior_sigma,
-        (),
-    )
+    prob = _Problem.of(batch, NoiseModel.of(batch, p, "known set"), p)
     trusted = np.asarray(trusted, bool).copy()
     _, a = prob.judge(np.arange(trusted.shape[0]), trusted)
     status = np.full(trusted.shape[0], "ok", dtype=object)
@@ -548,6 +531,14 @@ class _Problem:
     prior: np.ndarray | None
     prior_sigma: float | None
     starts: tuple[np.ndarray, ...]
+
+    @classmethod
+    def of(
+        cls, batch: SnapshotBatch, noise: NoiseModel, p: IntegrityParams, starts: tuple[np.ndarray, ...] = ()
+    ) -> _Problem:
+        prior = None if batch.prior is None else np.asarray(batch.prior, float)
+        reported, ranges = np.asarray(batch.reported, float), np.asarray(batch.ranges, float)
+        return cls(reported, ranges, noise, p, prior, batch.prior_sigma, starts)
 
     def judge(self, rows: np.ndarray, trusted: np.ndarray) -> tuple[Estimate, Assessment]:
         """Robust estimate and assessment of the trials ``rows`` with their trusted sets."""

@@ -5,10 +5,10 @@ trial at (9, 4)). The trials are the sweep's own (`swarmraft sweep --preset real
 
 Printed: the attacked drones' efficiency over every trial with a bound and an error (as
 `cells.csv`'s `attacked_efficiency`), each status' share of the trials and of the squared
-error, the alarms by cause; then, for every alarm, each set that leaves exactly f_max drones
-out given to the estimator (`verify_given`: the robust estimate and assessment, no
-detection): how many such sets pass every test (status `ok`) and whether the true honest set
-is among them. C(n, f_max) sets a trial: 126 at n = 9, 24,310 at n = 17.
+error, the alarms by cause; then, for every alarm, each set that leaves exactly f drones out
+(as many as there are attackers) given to the estimator (`verify_given`: the robust
+estimate and assessment, no detection): how many such sets pass every test (status `ok`) and
+whether the true honest set is among them. C(n, f) sets a trial: 126 at (9, 4), 24,310 at (17, 8).
 
 Run: .venv/bin/python benchmarks/alarm_sets.py [--n 9 --f 4 --chunks 2 --detector joint]
 """
@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import argparse
 import collections
-import itertools
 
 import numpy as np
 
-from swarmraft.estimation import SnapshotBatch, verify_batch, verify_given
+from swarmraft.estimation import verify_batch, verify_given
+from swarmraft.estimation.set_search import sets_leaving_out
 from swarmraft.experiments import build_config
 from swarmraft.experiments.calibration import detector_settings
 from swarmraft.experiments.trials import bound_metrics, chunk_seed, draw, snapshot_batch
@@ -32,20 +32,14 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=9)
     ap.add_argument("--f", type=int, default=4)
     ap.add_argument("--chunks", type=int, default=2, help="chunks of 1,000 trials")
-    ap.add_argument("--detector", default="joint")
+    ap.add_argument("--detector", default="joint", choices=["clique", "fde", "joint", "shape"])
     a = ap.parse_args()
     n, f = a.n, a.f
     if not (n >= 3 and 1 <= f <= (n - 1) // 2 and a.chunks >= 1):
         ap.error(f"need n >= 3, 1 <= f <= (n-1)//2 and --chunks >= 1; got n = {n}, f = {f}")
     config = build_config("realistic", n=(n,), f=(f,), trials=1000 * a.chunks, detector=a.detector)
     params, _ = detector_settings(config, n)
-    f_max = (n - 1) // 2
-    sets = []
-    for out in itertools.combinations(range(n), f_max):
-        s = np.ones(n, bool)
-        s[list(out)] = False
-        sets.append(s)
-    sets = np.array(sets)
+    sets = sets_leaving_out(n, f)  # as many drones out as there are attackers
     sq, bound, status, cause = [], [], [], []
     search = collections.Counter()
     for c in range(a.chunks):
@@ -58,9 +52,7 @@ def main() -> None:
         cause.append(np.asarray(v.diagnostics["alarm_cause"]).astype(str))
         for t in np.flatnonzero(v.status == "alarm"):
             S = len(sets)
-            b = SnapshotBatch(
-                np.repeat(d.reported[t : t + 1], S, 0), np.repeat(d.ranges[t : t + 1], S, 0), (1.5, 3.0), 0.1
-            )
+            b = snapshot_batch(config, d).subset(np.full(S, t))
             ok = np.flatnonzero(verify_given(b, sets, a.detector, **params).status == "ok")
             right = bool((sets[ok] == ~d.attackers[t]).all(axis=1).any())
             kind = "none" if not ok.size else "one" if ok.size == 1 else "several"
@@ -80,7 +72,7 @@ def main() -> None:
     for c in sorted(set(cause[status == "alarm"])):
         k = use & (status == "alarm") & (cause == c)
         print(f"  alarm, {c:20s} {(k).sum():4d} trials with an error, {sq[k].sum() / total:6.1%} of it")
-    print(f"every alarm given each of the {len(sets)} sets with f_max = {f_max} drones out:")
+    print(f"every alarm given each of the {len(sets)} sets with f = {f} drones out:")
     for (kind, right), count in sorted(search.items()):
         print(f"  {kind:8s} passing, the true set {'among them' if right else 'not among them'}: {count}")
 

@@ -257,8 +257,7 @@ def test_protection_levels_bound_the_error_at_the_integrity_risk(det):
     assert 3.0 < np.median(v.hpl[ok]) < 30.0 and 3.0 < np.median(v.vpl[ok]) < 40.0
 
 
-@pytest.mark.parametrize("det", ["joint", "clique"])
-def test_trusted_set_solver_is_efficient_where_it_must_be(det):
+def test_trusted_set_solver_is_efficient_where_it_must_be(det="joint"):
     """The estimate given the true honest set (`verify_given`: the robust estimate and the
     assessment, no detection) against the swarm bound, at 1.1 or below for attacked and honest
     drones at (7, 3), (9, 4) and (13, 3), the flags exactly the attackers (README: 1.00-1.07

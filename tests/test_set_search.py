@@ -37,6 +37,9 @@ def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(a
     v = verify_batch(batch, "joint", set_search=300)
     # trial 1: only the true honest set passes among the sets leaving out at most 4
     assert v.status[0] == "ok" and (v.faulty[0] == attackers[0]).all()
+    # the diagnostics are the new verdict's, not the alarm's
+    assert (v.diagnostics["trusted"][0] == ~attackers[0]).all()
+    assert v.diagnostics["alarm_cause"][0] == ""
     # trial 95: several sets pass (the true one among them): no guess
     assert v.status[1] == "unidentifiable"
     assert not (v.faulty[1] & ~attackers[1]).any()  # no honest drone accused
@@ -57,3 +60,21 @@ def test_an_explanation_that_moves_drones_beyond_the_levels_is_a_rival():
     v = verify_batch(snapshot_batch(cfg, d).subset(np.array([147])), "joint", set_search=300)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[147]).any()
+
+
+def test_replacing_rows_keeps_strings_whole_and_every_diagnostic_in_step():
+    from swarmraft.estimation import VerdictBatch
+
+    a = VerdictBatch(
+        np.zeros((2, 3, 3)), np.zeros((2, 3), bool), np.array(["ok", "ok"]), {"why": np.array(["", ""])}
+    )
+    b = VerdictBatch(
+        np.ones((1, 3, 3)),
+        np.ones((1, 3), bool),
+        np.array(["unidentifiable"]),
+        {"why": np.array(["exclusion exhausted"])},
+    )
+    c = a.with_rows(np.array([1]), b, np.array([0]))
+    assert list(c.status) == ["ok", "unidentifiable"]
+    assert list(c.diagnostics["why"]) == ["", "exclusion exhausted"]
+    assert c.faulty[1].all() and not c.faulty[0].any() and not a.faulty.any()  # a is unchanged

@@ -68,7 +68,8 @@ from swarmraft.cli.tables import (
     is_flag=True,
     default=None,
     help="give the detector the true honest set instead of detecting it: its estimate and "
-    "assessment with perfect detection (clique, fde, joint, shape).",
+    "assessment with perfect detection (clique, fde, joint, shape: the same with their default "
+    "parameters; detection parameters are not used).",
 )
 @WORKERS
 @SCHEDULER

@@ -24,15 +24,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
 
 import numpy as np
 
 from swarmraft.estimation.integrity import IntegrityParams, finish, given_set, status_rank
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
-
-FIELDS = ("positions", "faulty", "status", "drone_status", "hpl", "vpl")
 
 
 def sets_leaving_out(n: int, k: int) -> np.ndarray:
@@ -53,18 +50,11 @@ def search_alarms(
     if cap <= 0 or not rows.size:
         return v
     n = v.faulty.shape[1]
-    out = {name: getattr(v, name).copy() for name in FIELDS}
-    out["status"] = out["status"].astype(object)
-    out["drone_status"] = out["drone_status"].astype(object)
     for t in rows:
         w = _search(batch, p, noise, t, n, f_max, cap)
-        if w is None or status_rank(w.status)[0] >= status_rank(np.array(["alarm"]))[0]:
-            continue
-        for name in FIELDS:
-            out[name][t] = getattr(w, name)[0]
-    return replace(
-        v, **{k: (a.astype(str) if k in ("status", "drone_status") else a) for k, a in out.items()}
-    )
+        if w is not None and status_rank(w.status)[0] < status_rank(v.status[t : t + 1])[0]:
+            v = v.with_rows(np.array([t]), w, np.array([0]))
+    return v
 
 
 def _search(

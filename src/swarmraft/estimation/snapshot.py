@@ -6,7 +6,7 @@ arrays with a leading trial axis, so sweeps verify thousands of trials in one ca
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -206,6 +206,25 @@ class VerdictBatch:
         for name in ("hpl", "vpl"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full((T, n), np.nan))
+
+    def with_rows(self, rows: np.ndarray, other: VerdictBatch, take: np.ndarray) -> VerdictBatch:
+        """This batch with its verdicts ``rows`` (indices) replaced by ``other``'s verdicts
+        ``take``: every field, and each diagnostic both hold (strings kept whole); a
+        diagnostic only this batch has keeps its old rows."""
+
+        def merged(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            a = np.asarray(a)
+            text = a.dtype.kind == "U"
+            out = a.astype(object) if text else a.copy()
+            out[rows] = np.asarray(b)[take]
+            return out.astype(str) if text else out
+
+        fields = ("positions", "faulty", "status", "drone_status", "hpl", "vpl")
+        new = {name: merged(getattr(self, name), getattr(other, name)) for name in fields}
+        diag = dict(self.diagnostics)
+        for key in diag.keys() & other.diagnostics.keys():
+            diag[key] = merged(diag[key], other.diagnostics[key])
+        return replace(self, diagnostics=diag, **new)
 
     def item(self, t: int) -> Verdict:
         return Verdict(

@@ -91,6 +91,22 @@ def test_a_known_set_needs_a_detector_with_a_noise_model(cwd):
         "error: known_set: detector 'paper' has no noise model to estimate with; use clique, fde",
         cwd,
     )
+    fails_cleanly(
+        [
+            "sweep",
+            "--known-set",
+            "--detector",
+            "joint",
+            "--param",
+            "set_search=300",
+            "--n",
+            "9",
+            "--out",
+            "o",
+        ],
+        "error: known_set: set_search is a detection parameter of joint, not used with the true honest set",
+        cwd,
+    )
 
 
 def test_calibrate_needs_3_drones(cwd):

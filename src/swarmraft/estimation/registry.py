@@ -93,12 +93,19 @@ def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -
         return run_screened(get_detector(detector).run, batch, p)
 
 
-def check_known_set(detector: str) -> None:
+def check_known_set(detector: str, params: dict[str, Any] | None = None) -> None:
     """A one-line ValueError unless ``detector`` has a noise model to estimate with when its
-    trusted set is given (`verify_given`): its parameters are `IntegrityParams`."""
+    trusted set is given (`verify_given`): its parameters are `IntegrityParams`; and where
+    ``params`` holds one of its detection parameters, which a given set does not use."""
     if not issubclass(get_detector(detector).params, IntegrityParams):
         known = ", ".join(n for n in detector_names() if issubclass(get_detector(n).params, IntegrityParams))
         raise ValueError(f"known_set: detector {detector!r} has no noise model to estimate with; use {known}")
+    unused = sorted(set(params or {}) - set(IntegrityParams.model_fields))
+    if unused:
+        what = "is a detection parameter" if len(unused) == 1 else "are detection parameters"
+        raise ValueError(
+            f"known_set: {', '.join(unused)} {what} of {detector}, not used with the true honest set given"
+        )
 
 
 def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **params: Any) -> VerdictBatch:
@@ -106,7 +113,7 @@ def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **
     robust estimate and assessment of a statistical detector (`integrity.given_set`), with
     its parameters, on ranges screened as the detector screens them. A detector without a
     noise model (``paper``) is a one-line ValueError."""
-    check_known_set(detector)
+    check_known_set(detector, params)
     p = detector_params(detector, **params)
     trusted = np.asarray(trusted, bool)
     want = np.shape(batch.reported)[:2]

@@ -185,7 +185,7 @@ class SweepConfig(_Strict):
         except ValueError as exc:
             raise ValueError(f"detector_params: {exc}") from None
         if self.known_set:
-            check_known_set(self.detector)
+            check_known_set(self.detector, self.detector_params)
         return self
 
     def cells(self) -> list[tuple[int, int]]:

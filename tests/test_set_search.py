@@ -78,3 +78,27 @@ def test_replacing_rows_keeps_strings_whole_and_every_diagnostic_in_step():
     assert list(c.status) == ["ok", "unidentifiable"]
     assert list(c.diagnostics["why"]) == ["", "exclusion exhausted"]
     assert c.faulty[1].all() and not c.faulty[0].any() and not a.faulty.any()  # a is unchanged
+
+
+def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
+    """`cannot_pass` is exact: on the first alarms of (9, 4) and (7, 3), no set it rules out
+    passes its tests when estimated, and it rules most out (what makes the search cheap)."""
+    from swarmraft.estimation.gnc import JointParams
+    from swarmraft.estimation.integrity import given_set
+    from swarmraft.estimation.noise import NoiseModel
+    from swarmraft.estimation.set_search import cannot_pass
+
+    ruled = total = 0
+    for n, f in ((9, 4), (7, 3)):
+        cfg = build_config("realistic", n=(n,), f=(f,), trials=1000)
+        d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, n, f, 0)), 1000, n, f)
+        batch = snapshot_batch(cfg, d)
+        p = JointParams()
+        noise = NoiseModel.of(batch, p, "test")
+        sets = np.concatenate([sets_leaving_out(n, k) for k in range(f + 1)])
+        for t in np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[:4]:
+            out = cannot_pass(batch.subset(np.array([t])), p, noise, sets)
+            status = given_set(batch.subset(np.full(len(sets), t)), p, sets).status
+            assert not (out & (status != "alarm")).any(), (n, f, t)
+            ruled, total = ruled + out.sum(), total + len(sets)
+    assert ruled > 0.5 * total

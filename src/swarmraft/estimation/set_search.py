@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 from swarmraft.estimation.integrity import IntegrityParams, finish, given_set, status_rank
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.joint import chi2_quantile
+from swarmraft.estimation.noise import NoiseModel, gnss_information
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 
@@ -66,10 +67,16 @@ def _search(
         return None
     one = batch.subset(np.array([t]))
     sets = np.concatenate([sets_leaving_out(n, k) for k in range(f_max + 1)])
-    g = given_set(batch.subset(np.full(len(sets), t)), p, sets)
     # a set explains the data when it passes its tests: `ok`, or `degenerate` where the
-    # geometry leaves some drone unfixed (an explanation all the same)
-    explains = g.status != "alarm"
+    # geometry leaves some drone unfixed (an explanation all the same); a set that no estimate
+    # could pass is not estimated (a verdict does not depend on the others in its batch)
+    live = ~cannot_pass(one, p, noise, sets)
+    explains = np.zeros(len(sets), dtype=bool)
+    positions = np.full((len(sets), n, 3), np.nan)
+    if live.any():
+        g = given_set(batch.subset(np.full(int(live.sum()), t)), p, sets[live])
+        explains[live] = g.status != "alarm"
+        positions[live] = g.positions
     if not explains.any():
         return None
     left_out = (~sets).sum(axis=1)
@@ -82,13 +89,39 @@ def _search(
     # every other explanation is a rival where it places some drone beyond the answer's
     # levels: two explanations with at most f_max attackers (a set with more drones left
     # out is one too: no margin here, the search answers alarms only)
-    d = g.positions[explains] - w.positions[0]
+    d = positions[explains] - w.positions[0]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > w.hpl[0]) | (np.abs(d[..., 2]) > w.vpl[0])
     rivals = sets[explains][beyond.any(axis=1)]
     if len(rivals):
         return _unidentifiable(one, p, noise, np.concatenate([sets[first], rivals]))
     return w
+
+
+def cannot_pass(one: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, sets: np.ndarray) -> np.ndarray:
+    """Sets (S, n) of the one-trial batch ``one`` whose residual tests (`joint.tests_pass`) fail
+    whatever the estimate (S,). Two trusted drones i, j with a range d_ij that i measured: the
+    local test bounds each one's GNSS residual by r = sqrt(L / lambda_min) (L its 3-dof
+    quantile at p_fa / n, lambda_min the GNSS information's smallest eigenvalue) and the global
+    test bounds the range residual by range_sigma sqrt(G) (G its quantile at p_fa with the
+    set's degrees of freedom), so |(|z_i - z_j|) - d_ij| <= 2 r + range_sigma sqrt(G) for
+    their reports z in any passing estimate. A set with a pair beyond it fails; a set with no
+    degrees of freedom (the global test then passes) is never ruled out here."""
+    z = np.asarray(one.reported, float)[0]
+    ranges = np.asarray(one.ranges, float)[0]
+    n = z.shape[0]
+    lam = float(np.linalg.eigvalsh(gnss_information(noise.gnss_cov))[0])
+    reach = 2.0 * np.sqrt(chi2_quantile(1 - p.p_fa / n, 3) / lam)
+    measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        gap = np.where(measured, np.abs(np.linalg.norm(z[:, None] - z[None], axis=2) - ranges), 0.0)
+    own = (measured[None] & sets[:, :, None]).sum(axis=(1, 2))
+    dof = 3 * sets.sum(axis=1) + own - 3 * n
+    limit = reach + noise.range_sigma * np.sqrt(chi2_quantile(1 - p.p_fa, np.maximum(dof, 1)))
+    limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
+    both = sets[:, :, None] & sets[:, None, :]
+    beyond = (both & (gap[None] > limit[:, None, None])).any(axis=(1, 2))
+    return beyond & (dof > 0) & np.isfinite(z).all()
 
 
 def _unidentifiable(

@@ -51,7 +51,7 @@ from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
-from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch, merged_rows
 from swarmraft.estimation.woodbury import without_each
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
@@ -512,13 +512,6 @@ def _verdicts(
     )
 
 
-def _merged(whole: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``whole`` with ``rows`` replaced by ``part`` (strings kept whole, whatever their length)."""
-    out = whole.astype(object) if whole.dtype.kind == "U" else whole.copy()
-    out[rows] = part
-    return out
-
-
 @dataclass(frozen=True)
 class _Problem:
     """What every step of `finish` shares: the data, the noise model, the parameters, the
@@ -583,8 +576,10 @@ def _rejudged(
     """``est`` and ``a`` with the trials ``rows`` judged again with their new trusted sets."""
     e, b = prob.judge(rows, trusted)
     return (
-        Estimate(*(_merged(getattr(est, k), getattr(e, k), rows) for k in Estimate.__dataclass_fields__)),
-        Assessment(*(_merged(getattr(a, k), getattr(b, k), rows) for k in Assessment.__dataclass_fields__)),
+        Estimate(*(merged_rows(getattr(est, k), rows, getattr(e, k)) for k in Estimate.__dataclass_fields__)),
+        Assessment(
+            *(merged_rows(getattr(a, k), rows, getattr(b, k)) for k in Assessment.__dataclass_fields__)
+        ),
     )
 
 

@@ -50,25 +50,23 @@ def search_alarms(
     """``v`` with each ``alarm`` verdict replaced by the exhaustive search's answer where it
     is better (see the module docstring); ``cap`` sets at most per trial (0: no search)."""
     rows = np.flatnonzero(v.status == "alarm")
-    if cap <= 0 or not rows.size:
-        return v
     n = v.faulty.shape[1]
+    if not rows.size or sum(math.comb(n, k) for k in range(f_max + 1)) > cap:
+        return v
+    sets = np.concatenate([sets_leaving_out(n, k) for k in range(f_max + 1)])
     for t in rows:
-        w = _search(batch, p, noise, t, n, f_max, cap)
+        w = _search(batch, p, noise, t, sets)
         if w is not None and status_rank(w.status)[0] < status_rank(v.status[t : t + 1])[0]:
             v = v.with_rows(np.array([t]), w, np.array([0]))
     return v
 
 
 def _search(
-    batch: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, t: int, n: int, f_max: int, cap: int
+    batch: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, t: int, sets: np.ndarray
 ) -> VerdictBatch | None:
-    """The search's verdict for trial t, or None where no set passes or the search would try
-    more than ``cap`` sets."""
-    if sum(math.comb(n, k) for k in range(f_max + 1)) > cap:
-        return None
+    """The search's verdict for trial t over ``sets`` (S, n), or None where no set passes."""
+    n = sets.shape[1]
     one = batch.subset(np.array([t]))
-    sets = np.concatenate([sets_leaving_out(n, k) for k in range(f_max + 1)])
     # a set explains the data when it passes its tests: `ok`, or `degenerate` where the
     # geometry leaves some drone unfixed (an explanation all the same); a set that no estimate
     # could pass is not estimated (a verdict does not depend on the others in its batch)

@@ -178,6 +178,14 @@ class SnapshotBatch:
         return T, n
 
 
+def merged_rows(whole: np.ndarray, rows: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """A copy of ``whole`` with ``rows`` replaced by ``part``; strings kept whole whatever
+    their length (an array of str comes back as objects)."""
+    out = whole.astype(object) if whole.dtype.kind == "U" else whole.copy()
+    out[rows] = part
+    return out
+
+
 @dataclass(frozen=True)
 class VerdictBatch:
     """Verdicts of a batch: positions (T, n, 3), faulty (T, n), status (T,) of str,
@@ -214,10 +222,8 @@ class VerdictBatch:
 
         def merged(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             a = np.asarray(a)
-            text = a.dtype.kind == "U"
-            out = a.astype(object) if text else a.copy()
-            out[rows] = np.asarray(b)[take]
-            return out.astype(str) if text else out
+            out = merged_rows(a, rows, np.asarray(b)[take])
+            return out.astype(str) if a.dtype.kind == "U" else out
 
         fields = ("positions", "faulty", "status", "drone_status", "hpl", "vpl")
         new = {name: merged(getattr(self, name), getattr(other, name)) for name in fields}

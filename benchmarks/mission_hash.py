@@ -7,7 +7,9 @@ Run it on two trees and compare the hashes, e.g. the code before a change:
   PYTHONPATH=/tmp/base/src .venv/bin/python benchmarks/mission_hash.py demo --duration 35
   PYTHONPATH=src .venv/bin/python benchmarks/mission_hash.py demo --duration 35
 
-``--duration`` cuts the scenario short (spoofs, outages and faults that start later dropped).
+``--duration`` cuts the scenario short (spoofs, outages and faults that start later dropped);
+``--param KEY=VALUE`` (repeatable) sets one of the detector's parameters, e.g. to see whether a
+parameter changes what a mission commits.
 """
 
 from __future__ import annotations
@@ -27,8 +29,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scenario")
     ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     a = ap.parse_args()
     data = tomllib.loads(find_scenario(a.scenario).read_text())
+    for kv in a.param:
+        key, sep, value = kv.partition("=")
+        if not sep:
+            ap.error(f"--param {kv!r}: expected KEY=VALUE")
+        params = data.setdefault("protocol", {}).setdefault("detector_params", {})
+        params[key] = tomllib.loads(f"v = {value}")["v"]
     if a.duration:
         data["duration_s"] = a.duration
         for key, t in (("spoof", "start_s"), ("outage", "start_s"), ("fault", "at_s")):
@@ -49,7 +58,9 @@ def main() -> None:
     ):
         h.update(np.ascontiguousarray(arr).tobytes())
     took = time.time() - t0
-    print(f"{a.scenario}: {h.hexdigest()[:16]}, {int(log.committed.sum())} committed, {took:.1f} s")
+    kinds, counts = np.unique(log.status.astype(str), return_counts=True)
+    statuses = ", ".join(f"{k} {c}" for k, c in zip(kinds, counts, strict=True))
+    print(f"{a.scenario}: {h.hexdigest()[:16]}, {int(log.committed.sum())} committed ({statuses}), {took:.1f} s")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
-"""The exhaustive set search of alarm verdicts (`estimation.set_search`, `joint`'s
-``set_search``): smallest exclusion first, one passing set is the answer, several are
-unidentifiable, none leaves the alarm."""
+"""The exhaustive set search of alarm verdicts, and of degenerate ones that accuse drones
+(`estimation.set_search`, `joint`'s ``set_search``): smallest exclusion first, one passing
+set is the answer, several are unidentifiable, none leaves the alarm."""
 
 import math
 
@@ -62,6 +62,24 @@ def test_an_explanation_that_moves_drones_beyond_the_levels_is_a_rival():
     assert not (v.faulty[0] & ~d.attackers[147]).any()
 
 
+def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is_searched():
+    """Trial 3,972 of (7, 1) (chunk 3): `joint` leaves 3 honest drones out and trusts the
+    spoofer with the 3 others, on the mirror side of their plane: `degenerate`, the spoofer
+    94 m off, 3 honest drones accused. The true set leaves 1 out and passes; the mirror set is
+    its rival: `unidentifiable`, nobody accused, no drone placed where one set alone puts it."""
+    cfg = build_config("realistic", n=(7,), f=(1,), trials=10000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 1, 3)), 1000, 7, 1)
+    batch = snapshot_batch(cfg, d).subset(np.array([972]))
+    before = verify_batch(batch, "joint")
+    assert before.status[0] == "degenerate" and before.faulty[0].sum() == 3
+    assert np.linalg.norm(before.positions[0] - d.truth[972], axis=1).max() > 90
+    v = verify_batch(batch, "joint", set_search=100)
+    assert v.status[0] == "unidentifiable"
+    assert not v.faulty[0].any()
+    err = np.linalg.norm(v.positions[0] - d.truth[972], axis=1)
+    assert np.isnan(err[d.attackers[972]]).all() and np.nanmax(err) < 10
+
+
 def test_replacing_rows_keeps_strings_whole_and_every_diagnostic_in_step():
     from swarmraft.estimation import VerdictBatch
 
@@ -86,7 +104,7 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
     from swarmraft.estimation.gnc import JointParams
     from swarmraft.estimation.integrity import given_set
     from swarmraft.estimation.noise import NoiseModel
-    from swarmraft.estimation.set_search import cannot_pass
+    from swarmraft.estimation.joint import cannot_pass
 
     ruled = total = 0
     for n, f in ((9, 4), (7, 3)):
@@ -97,7 +115,9 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
         noise = NoiseModel.of(batch, p, "test")
         sets = np.concatenate([sets_leaving_out(n, k) for k in range(f + 1)])
         for t in np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[:4]:
-            out = cannot_pass(batch.subset(np.array([t])), p, noise, sets)
+            one = batch.subset(np.array([t]))
+            owner = np.zeros(len(sets), int)
+            out = cannot_pass(one.reported, one.ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p.p_fa)
             status = given_set(batch.subset(np.full(len(sets), t)), p, sets).status
             assert not (out & (status != "alarm")).any(), (n, f, t)
             ruled, total = ruled + out.sum(), total + len(sets)

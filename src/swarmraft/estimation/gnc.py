@@ -30,7 +30,7 @@ from swarmraft.estimation.joint import (
 )
 from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whitener
 from swarmraft.estimation.registry import register
-from swarmraft.estimation.set_search import search_alarms
+from swarmraft.estimation.set_search import search_sets
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 
@@ -172,9 +172,9 @@ class JointParams(IntegrityParams):
     set_search: int = Field(
         0,
         ge=0,
-        description="an alarm verdict tries every trusted set leaving out at most f_max drones, "
-        "smallest exclusion first, where all of them are at most this many sets (256 at n = 9, "
-        "1,024 at 11, 4,096 at 13; fewer: no search); 0: off",
+        description="an alarm verdict, or a degenerate one that accuses drones, tries every "
+        "trusted set leaving out at most f_max drones, smallest exclusion first, where all of them "
+        "are at most this many sets (256 at n = 9, 1,024 at 11, 4,096 at 13; fewer: no search); 0: off",
     )
 
 
@@ -242,4 +242,4 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         alt = clique_detector(batch.subset(bad), CliqueParams(**{**shared, "f_max": f_max}))
         better = status_rank(alt.status) < status_rank(v.status[bad])
         v = v.with_rows(np.flatnonzero(bad)[better], alt, np.flatnonzero(better))
-    return search_alarms(batch, p, noise, v, f_max, p.set_search)
+    return search_sets(batch, p, noise, v, f_max, p.set_search)

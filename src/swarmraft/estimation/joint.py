@@ -724,6 +724,41 @@ def tests_pass(
     return local_ok & global_ok
 
 
+def cannot_pass(
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    sets: np.ndarray,
+    owner: np.ndarray,
+    gnss_cov: np.ndarray,
+    range_sigma: float,
+    p_fa: float,
+) -> np.ndarray:
+    """Trusted sets (B, n) of the trials ``owner`` (B,) of ``reported`` (T, n, 3) and
+    ``ranges`` (T, n, n) whose residual tests (`tests_pass`) fail whatever the estimate (B,).
+    Two trusted drones i, j with a range d_ij that i measured: the local test bounds each
+    one's GNSS residual by r = sqrt(L / lambda_min) (L its 3-dof quantile at p_fa / n,
+    lambda_min the GNSS information's smallest eigenvalue) and the global test bounds the
+    range residual by range_sigma sqrt(G) (G its quantile at p_fa with the set's degrees of
+    freedom), so |(|z_i - z_j|) - d_ij| <= 2 r + range_sigma sqrt(G) for their reports z in any
+    passing estimate. A set with a pair beyond it fails; a set with no degrees of freedom (the
+    global test then passes) is never ruled out here. Exact: a set ruled out is one no
+    solver could make pass, so it need not be solved."""
+    n = reported.shape[1]
+    lam = float(np.linalg.eigvalsh(gnss_information(gnss_cov))[0])
+    reach = 2.0 * np.sqrt(chi2_quantile(1 - p_fa / n, 3) / lam)
+    measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        gap = np.linalg.norm(reported[:, :, None] - reported[:, None], axis=3) - ranges
+    gap = np.where(measured, np.abs(gap), 0.0)
+    own = (measured[owner] & sets[:, :, None]).sum(axis=(1, 2))
+    dof = 3 * sets.sum(axis=1) + own - 3 * n
+    limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
+    limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
+    both = sets[:, :, None] & sets[:, None, :]
+    beyond = (both & (gap[owner] > limit[:, None, None])).any(axis=(1, 2))
+    return beyond & (dof > 0) & np.isfinite(reported).all(axis=(1, 2))[owner]
+
+
 def passes_residual_tests(
     x: np.ndarray,
     reported: np.ndarray,

@@ -60,7 +60,8 @@ def main() -> None:
     took = time.time() - t0
     kinds, counts = np.unique(log.status.astype(str), return_counts=True)
     statuses = ", ".join(f"{k} {c}" for k, c in zip(kinds, counts, strict=True))
-    print(f"{a.scenario}: {h.hexdigest()[:16]}, {int(log.committed.sum())} committed ({statuses}), {took:.1f} s")
+    committed = int(log.committed.sum())
+    print(f"{a.scenario}: {h.hexdigest()[:16]}, {committed} committed ({statuses}), {took:.1f} s")
 
 
 if __name__ == "__main__":

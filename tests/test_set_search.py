@@ -103,8 +103,8 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
     passes its tests when estimated, and it rules most out (what makes the search cheap)."""
     from swarmraft.estimation.gnc import JointParams
     from swarmraft.estimation.integrity import given_set
-    from swarmraft.estimation.noise import NoiseModel
     from swarmraft.estimation.joint import cannot_pass
+    from swarmraft.estimation.noise import NoiseModel
 
     ruled = total = 0
     for n, f in ((9, 4), (7, 3)):
@@ -117,7 +117,8 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
         for t in np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[:4]:
             one = batch.subset(np.array([t]))
             owner = np.zeros(len(sets), int)
-            out = cannot_pass(one.reported, one.ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p.p_fa)
+            sigma = noise.range_sigma
+            out = cannot_pass(one.reported, one.ranges, sets, owner, noise.gnss_cov, sigma, p.p_fa)
             status = given_set(batch.subset(np.full(len(sets), t)), p, sets).status
             assert not (out & (status != "alarm")).any(), (n, f, t)
             ruled, total = ruled + out.sum(), total + len(sets)

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmraft.estimation.joint import (
+    cannot_pass,
     chi2_quantile,
     initial_positions,
     joint_estimate,
@@ -131,20 +132,28 @@ def rival_sets(
     # (n = 9, f = 4: a spoofed drone trusted, its report near the mirror of its true position
     # across the honest drones' plane, placed 3 flagged drones 28-98 m off, every test passing)
     x0[B:] = mirrored(x[owner[B:]], rng_[B:], sets[B:])
-    xs = joint_estimate(
-        rep,
-        rng_,
-        sets,
-        noise.gnss_cov,
-        noise.range_sigma,
-        iters=iters,
-        x0=x0,
-        prior=pr,
-        prior_sigma=prior_sigma,
-        reduced=True,  # a rival only feeds the tests and the comparison with the levels
-    )
-    _, gnss_q, total, dof = residual_statistics(xs, rep, rng_, sets, noise)
-    passed = tests_pass(gnss_q, total, dof, sets, p_fa)
+    # a rival no estimate could pass is not solved (most swaps of a spoofed drone tens of
+    # metres off): it keeps its start, fails, and costs inf; the others are as if all were
+    # solved (a solve does not depend on the others in its batch)
+    live = ~cannot_pass(reported, ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p_fa)
+    xs = x0.copy()
+    total = np.full(owner.size, np.inf)
+    passed = np.zeros(owner.size, dtype=bool)
+    if live.any():
+        xs[live] = joint_estimate(
+            rep[live],
+            rng_[live],
+            sets[live],
+            noise.gnss_cov,
+            noise.range_sigma,
+            iters=iters,
+            x0=x0[live],
+            prior=None if pr is None else pr[live],
+            prior_sigma=prior_sigma,
+            reduced=True,  # a rival only feeds the tests and the comparison with the levels
+        )
+        _, gnss_q, total[live], dof = residual_statistics(xs[live], rep[live], rng_[live], sets[live], noise)
+        passed[live] = tests_pass(gnss_q, total[live], dof, sets[live], p_fa)
     # the full search's rivals must also fit the data they use as well as the chosen estimate
     # does: a swap within the 1-dof quantile (passing the tests is not enough where there are
     # many rivals); a drop, which asks for one attacker more, better by ``drop_margin``. Left

@@ -114,6 +114,12 @@ def _search(
     d = positions[explains] - w.positions[0]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > w.hpl[0]) | (np.abs(d[..., 2]) > w.vpl[0])
+    # a drone the answer places and another explanation leaves undetermined (nan: a mirror
+    # image fits as well) is placed only if that explanation is wrong: a rival too. In a flat
+    # layer (7, 3), trial 539: the answer trusted a spoofer whose report lifted the anchors
+    # out of their plane and placed a drone 48 m below its level of 15 m; the true set,
+    # `degenerate`, could not place it
+    beyond |= np.isnan(positions[explains]).any(axis=2) & np.isfinite(w.positions[0]).all(axis=1)
     rivals = sets[explains][beyond.any(axis=1)]
     if len(rivals):
         return _unidentifiable(one, p, noise, np.concatenate([sets[first], rivals])), k

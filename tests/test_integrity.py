@@ -196,6 +196,35 @@ def test_a_rival_with_one_more_drone_out_that_fits_better_than_an_honest_drop_co
     assert not over.any(), (v.status, np.flatnonzero(over.any(axis=1)))
 
 
+def test_the_ok_drones_of_a_degenerate_verdict_are_checked_against_rivals():
+    """(9, 4), realistic, trial 9,331: `joint` trusted a spoofed drone, left out an honest one,
+    and its verdict was `degenerate` (one drone unfixed) with 3 drones `ok` at drone level
+    42-118 m off, their levels 15-35 m, on the mirror side of a near-plane; the true set,
+    one swap away, is a rival: no `ok` drone beyond its level, no honest drone accused."""
+    truth, rep, rng_, attackers = _realistic_trials(9, 4, (9331,))
+    v = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1), "joint")
+    err = v.positions - truth
+    with np.errstate(invalid="ignore"):
+        beyond = (np.hypot(err[..., 0], err[..., 1]) > v.hpl) | (np.abs(err[..., 2]) > v.vpl)
+    assert not ((v.drone_status == "ok") & beyond).any(), (v.status, v.drone_status)
+    assert not (v.faulty & ~attackers).any()
+
+
+def test_a_likelier_swap_is_taken_with_a_margin():
+    """(9, 4), realistic: `joint` said ok while trusting a spoofed drone of 10-15 m and
+    accusing an honest one; the true set, one swap away, fits with a chi-square lower by
+    14-30 (trials 16, 880, 1310, 2587, 2840). With ``better_fit_margin`` (11.34, the 3-dof
+    0.99 quantile) the likelier set is taken; without it the verdicts stay as they were."""
+    trials = (16, 880, 1310, 2587, 2840)
+    truth, rep, rng_, attackers = _realistic_trials(9, 4, trials)
+    batch = SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1)
+    before = verify_batch(batch, "joint")
+    assert (before.faulty & ~attackers).any(axis=1).all()
+    v = verify_batch(batch, "joint", better_fit_margin=11.34)
+    assert (v.status == "ok").all() and (v.faulty == attackers).all()
+    assert np.linalg.norm(v.positions - truth, axis=2).max() < 5.0
+
+
 def test_a_rival_with_one_more_drone_out_must_fit_better():
     """(7, 1), realistic: with 6 trusted drones, leaving one out often lets it (and the flagged
     drone) sit at a mirror image that still passes the tests; without the likelihood-ratio

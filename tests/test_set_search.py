@@ -94,6 +94,24 @@ def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival()
     assert not (v.faulty[0] & ~d.attackers[539]).any()
 
 
+def test_an_alarm_no_set_explains_takes_the_likeliest_set_that_passes_its_residual_tests():
+    """(9, 4) trials 124 and 1,339: no set leaving out at most 4 drones passes every test;
+    the true honest set passes its residual tests and fails only its separation test (the
+    exact re-solve with 4 anchors left moves drones 2-6 times as far as linearised). The
+    alarm stands, with that set's positions and flags instead of the detector's."""
+    cfg = build_config("realistic", n=(9,), f=(4,), trials=10000)
+    for trial in (124, 1339):
+        c, t = divmod(trial, 1000)
+        d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, c)), 1000, 9, 4)
+        batch = snapshot_batch(cfg, d).subset(np.array([t]))
+        assert not (verify_batch(batch, "joint").faulty[0] == d.attackers[t]).all()
+        v = verify_batch(batch, "joint", set_search=300)
+        assert v.status[0] == "alarm" and v.diagnostics["alarm_cause"][0] == "separation test"
+        assert (v.faulty[0] == d.attackers[t]).all()
+        err = np.linalg.norm(v.positions[0] - d.truth[t], axis=1)
+        assert np.isfinite(err[~d.attackers[t]]).all() and np.nanmax(err) < 5.0
+
+
 def test_replacing_rows_keeps_strings_whole_and_every_diagnostic_in_step():
     from swarmraft.estimation import VerdictBatch
 

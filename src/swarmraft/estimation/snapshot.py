@@ -232,6 +232,18 @@ class VerdictBatch:
             diag[key] = merged(diag[key], other.diagnostics[key])
         return replace(self, diagnostics=diag, **new)
 
+    def subset(self, rows: np.ndarray) -> VerdictBatch:
+        """The verdicts selected by ``rows`` (a boolean mask or indices)."""
+        return VerdictBatch(
+            self.positions[rows],
+            self.faulty[rows],
+            self.status[rows],
+            {k: np.asarray(v)[rows] for k, v in self.diagnostics.items()},
+            self.drone_status[rows],
+            self.hpl[rows],
+            self.vpl[rows],
+        )
+
     def item(self, t: int) -> Verdict:
         return Verdict(
             positions=self.positions[t],

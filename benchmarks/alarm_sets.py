@@ -11,16 +11,19 @@ estimate and assessment, no detection): how many such sets pass every test (stat
 whether the true honest set is among them. C(n, f) sets a trial: 126 at (9, 4), 24,310 at (17, 8).
 
 Run: .venv/bin/python benchmarks/alarm_sets.py [--n 9 --f 4 --chunks 2 --detector joint]
+     [--param set_search=5000 --param better_fit_margin=11.34]
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import tomllib
 
 import numpy as np
 
 from swarmraft.estimation import verify_batch, verify_given
+from swarmraft.estimation.integrity import IntegrityParams
 from swarmraft.estimation.set_search import sets_leaving_out
 from swarmraft.experiments import build_config
 from swarmraft.experiments.calibration import detector_settings
@@ -33,12 +36,19 @@ def main() -> None:
     ap.add_argument("--f", type=int, default=4)
     ap.add_argument("--chunks", type=int, default=2, help="chunks of 1,000 trials")
     ap.add_argument("--detector", default="joint", choices=["clique", "fde", "joint", "shape"])
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="a detector parameter")
     a = ap.parse_args()
     n, f = a.n, a.f
     if not (n >= 3 and 1 <= f <= (n - 1) // 2 and a.chunks >= 1):
         ap.error(f"need n >= 3, 1 <= f <= (n-1)//2 and --chunks >= 1; got n = {n}, f = {f}")
     config = build_config("realistic", n=(n,), f=(f,), trials=1000 * a.chunks, detector=a.detector)
     params, _ = detector_settings(config, n)
+    for kv in a.param:
+        key, sep, value = kv.partition("=")
+        if not sep:
+            ap.error(f"--param {kv!r}: expected KEY=VALUE")
+        params[key] = tomllib.loads(f"v = {value}")["v"]
+    given = {k: v for k, v in params.items() if k in IntegrityParams.model_fields}  # not detection's
     sets = sets_leaving_out(n, f)  # as many drones out as there are attackers
     sq, bound, status, cause = [], [], [], []
     search = collections.Counter()
@@ -53,7 +63,7 @@ def main() -> None:
         for t in np.flatnonzero(v.status == "alarm"):
             S = len(sets)
             b = snapshot_batch(config, d).subset(np.full(S, t))
-            ok = np.flatnonzero(verify_given(b, sets, a.detector, **params).status == "ok")
+            ok = np.flatnonzero(verify_given(b, sets, a.detector, **given).status == "ok")
             right = bool((sets[ok] == ~d.attackers[t]).all(axis=1).any())
             kind = "none" if not ok.size else "one" if ok.size == 1 else "several"
             search[(kind, right)] += 1

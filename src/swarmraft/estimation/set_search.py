@@ -11,10 +11,11 @@ the answer (judged again by `integrity.finish`, rivals and all), several are
 ``unidentifiable`` (estimated from the drones all of them trust, only the drones outside
 all of them flagged), and where no set explains the data up to ``f_max`` the alarm stands,
 with the positions and flags of the likeliest set that passes its residual tests and fails
-only its separation test (`_likeliest_alarm`), where there is one. An ``ok`` answer becomes ``unidentifiable`` where any other explanation (more drones left
-out included: no margin) places some drone beyond its protection levels: at (9, 4) trial
-9,147 the smallest explanation left out 3 drones, trusted 2 spoofers and placed drones 66 m
-off, and the true set (4 out, ``degenerate``) was the rival that showed it.
+only its separation test (`_likeliest_alarm`), where there is one. An ``ok`` answer
+becomes ``unidentifiable`` where any other explanation (more drones left out included: no
+margin) places some drone beyond its protection levels: at (9, 4) trial 9,147 the smallest
+explanation left out 3 drones, trusted 2 spoofers and placed drones 66 m off, and the true
+set (4 out, ``degenerate``) was the rival that showed it.
 
 A ``degenerate`` verdict that accuses k drones is searched too, and replaced where a set
 leaving out fewer than k drones explains the data and the search's answer is ``ok`` or

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import argparse
 import collections
-import tomllib
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.estimation import verify_batch, verify_given
 from swarmraft.estimation.integrity import IntegrityParams
 from swarmraft.estimation.set_search import sets_leaving_out
@@ -43,11 +43,7 @@ def main() -> None:
         ap.error(f"need n >= 3, 1 <= f <= (n-1)//2 and --chunks >= 1; got n = {n}, f = {f}")
     config = build_config("realistic", n=(n,), f=(f,), trials=1000 * a.chunks, detector=a.detector)
     params, _ = detector_settings(config, n)
-    for kv in a.param:
-        key, sep, value = kv.partition("=")
-        if not sep:
-            ap.error(f"--param {kv!r}: expected KEY=VALUE")
-        params[key] = tomllib.loads(f"v = {value}")["v"]
+    params.update(param_values(ap, a.param, a.detector))
     given = {k: v for k, v in params.items() if k in IntegrityParams.model_fields}  # not detection's
     sets = sets_leaving_out(n, f)  # as many drones out as there are attackers
     sq, bound, status, cause = [], [], [], []

@@ -21,6 +21,7 @@ import tomllib
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.scenario import Scenario, find_scenario
 
@@ -32,12 +33,10 @@ def main() -> None:
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     a = ap.parse_args()
     data = tomllib.loads(find_scenario(a.scenario).read_text())
-    for kv in a.param:
-        key, sep, value = kv.partition("=")
-        if not sep:
-            ap.error(f"--param {kv!r}: expected KEY=VALUE")
-        params = data.setdefault("protocol", {}).setdefault("detector_params", {})
-        params[key] = tomllib.loads(f"v = {value}")["v"]
+    if a.param:
+        protocol = data.setdefault("protocol", {})
+        values = param_values(ap, a.param, protocol.get("detector", "joint"))
+        protocol.setdefault("detector_params", {}).update(values)
     if a.duration:
         data["duration_s"] = a.duration
         for key, t in (("spoof", "start_s"), ("outage", "start_s"), ("fault", "at_s")):

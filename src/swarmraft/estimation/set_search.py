@@ -98,11 +98,11 @@ def _search(
     reported, ranges = np.asarray(one.reported, float), np.asarray(one.ranges, float)
     owner = np.zeros(len(sets), dtype=int)
     live = ~cannot_pass(reported, ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p.p_fa)
+    if not live.any():
+        return None
     explains = np.zeros(len(sets), dtype=bool)
     positions = np.full((len(sets), n, 3), np.nan)
     left_out = (~sets).sum(axis=1)
-    if not live.any():
-        return None
     g = given_set(batch.subset(np.full(int(live.sum()), t)), p, sets[live])
     explains[live] = g.status != "alarm"
     positions[live] = g.positions

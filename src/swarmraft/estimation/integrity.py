@@ -471,8 +471,9 @@ def finish(
         faulty[rows] = ~sets
         est, a = _rejudged(prob, est, a, rows, trusted)
     final = worst_status(a.status, status)
+    known = None  # swaps already searched, for trials whose judgement has not changed since
     if p.better_fit_margin is not None:
-        better = _better_fit_rows(prob, est, a, final, trusted)
+        better, known = _better_fit_rows(prob, est, a, final, trusted)
         if better is not None:
             rows, sets = better
             candidate = trusted.copy()
@@ -483,7 +484,10 @@ def finish(
             faulty[rows[take]] = ~sets[take]
             est, a = _merged(est, a, rows[take], e, b, take)
             final = worst_status(a.status, status)
-    rival = _rival_rows(prob, est, a, final, trusted)
+            searched, r = known
+            kept = np.setdiff1d(searched, rows[take])
+            known = (kept, r.of_trials(kept))
+    rival = _rival_rows(prob, est, a, final, trusted, known)
     if rival is not None:
         rows, other = rival
         status[rows] = "unidentifiable"
@@ -642,19 +646,20 @@ def _cheapest(r: Rivals, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray] | No
 
 def _better_fit_rows(
     prob: _Problem, est: Estimate, a: Assessment, status: np.ndarray, trusted: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> tuple[tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray, Rivals] | None]:
     """Trials (indices) whose would-be ``ok`` verdict has a rival swap (`rivals.rival_sets`,
     the full search where it runs) that passes the tests, leaves out as many drones and has
     as many degrees of freedom, and fits with a lower chi-square: the likelier of two sets
-    that explain the data. Returns those trials and their best such swap (len(rows), n);
-    None if there are none. ``p.better_fit_margin``: by how much lower. At (9, 4) (realistic,
-    3,000 trials with ``set_search``) 26 `ok` verdicts accused an honest drone and trusted a
-    spoofed one of 10-15 m; the true set, one swap away, fitted better in 20 (chi-square 19
-    against 36 in trial 16), and a swap fitted better than a true set by up to 8.1 by chance
-    (an honest drone's 3-dof report left out)."""
+    that explain the data. Returns those trials and their best such swap (len(rows), n), or
+    None if there are none; and the trials searched with their swaps (the rival check's
+    own, which it need not search again), or None. ``p.better_fit_margin``: by how much
+    lower. At (9, 4) (realistic, 3,000 trials with ``set_search``) 26 `ok` verdicts accused
+    an honest drone and trusted a spoofed one of 10-15 m; the true set, one swap away,
+    fitted better in 20 (chi-square 19 against 36 in trial 16), and a swap fitted better than
+    a true set by up to 8.1 by chance (an honest drone's 3-dof report left out)."""
     rows = np.flatnonzero((status == "ok") & (~trusted).any(axis=1))
     if not rows.size:
-        return None
+        return None, None
     r = prob.swaps(est, a, trusted, rows, full=True)
     _, _, chosen, dof = residual_statistics(
         est.x[r.owner], prob.reported[r.owner], prob.ranges[r.owner], trusted[r.owner], prob.noise
@@ -664,11 +669,16 @@ def _better_fit_rows(
     )
     same = (r.trusted.sum(axis=1) == trusted[r.owner].sum(axis=1)) & (rival_dof == dof)
     likelier = r.passed & same & (r.cost < chosen - prob.p.better_fit_margin)
-    return _cheapest(r, np.where(likelier, r.cost, np.inf))
+    return _cheapest(r, np.where(likelier, r.cost, np.inf)), (rows, r)
 
 
 def _rival_rows(
-    prob: _Problem, est: Estimate, a: Assessment, status: np.ndarray, trusted: np.ndarray
+    prob: _Problem,
+    est: Estimate,
+    a: Assessment,
+    status: np.ndarray,
+    trusted: np.ndarray,
+    known: tuple[np.ndarray, Rivals] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict, or ``degenerate`` verdict with some drone ``ok``,
     has a rival trusted set placing some drone beyond its protection level (an ``ok`` drone:
@@ -676,20 +686,29 @@ def _rival_rows(
     `degenerate` verdict's ``ok`` drones are protected as an ``ok`` verdict's are: at (9, 4)
     (realistic, trial 9,331) `joint` trusted a spoofer, left out an honest drone and placed 3
     drones `ok` 42-118 m off (levels 15-35 m) on the mirror side of a near-plane, one drone
-    `degenerate`; the true set, one swap away, was a rival never tried."""
+    `degenerate`; the true set, one swap away, was a rival never tried. ``known``: trials
+    already searched (with these sets, estimate and assessment) and their swaps."""
     # a verdict with nothing flagged has rivals only by leaving a trusted drone out (full search)
     small = trusted.sum(axis=1) <= prob.p.full_rivals_below
     some_ok = (status == "ok") | ((status == "degenerate") & (a.drone_status == "ok").any(axis=1))
     rows = np.flatnonzero(some_ok & ((~trusted).any(axis=1) | small))
     if not rows.size:
         return None
-    r = prob.swaps(est, a, trusted, rows, full=True)
+    if known is None:
+        r = prob.swaps(est, a, trusted, rows, full=True)
+    else:
+        searched, r = known
+        r = r.of_trials(rows)
+        fresh = np.setdiff1d(rows, searched)
+        if fresh.size:
+            r = r.and_(prob.swaps(est, a, trusted, fresh, full=True))
     d = r.x - a.positions[r.owner]
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])
     real = r.passed & beyond.any(axis=1)
     if not real.any():
         return None
-    # per trial, the first rival found (B is ordered by trial)
+    # per trial, the first rival found (a trial's own rivals come in the same order whatever
+    # other trials are searched with it)
     owners, first = np.unique(r.owner[real], return_index=True)
     return owners, r.trusted[np.flatnonzero(real)[first]]

@@ -70,6 +70,17 @@ class Rivals:
     x: np.ndarray
     cost: np.ndarray  # (B,) the chi-square of each rival's fit
 
+    def of_trials(self, rows: np.ndarray) -> Rivals:
+        """The rivals of the trials ``rows`` (indices), in their order here."""
+        keep = np.isin(self.owner, rows)
+        return Rivals(self.owner[keep], self.trusted[keep], self.passed[keep], self.x[keep], self.cost[keep])
+
+    def and_(self, other: Rivals) -> Rivals:
+        """These rivals, then ``other``'s (of other trials)."""
+        return Rivals(
+            *(np.concatenate([getattr(self, k), getattr(other, k)]) for k in Rivals.__dataclass_fields__)
+        )
+
 
 def rival_sets(
     x: np.ndarray,

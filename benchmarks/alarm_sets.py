@@ -23,7 +23,7 @@ import numpy as np
 
 from cli_args import param_values
 from swarmraft.estimation import verify_batch, verify_given
-from swarmraft.estimation.integrity import IntegrityParams
+from swarmraft.estimation.integrity import given_set_fields
 from swarmraft.estimation.set_search import sets_leaving_out
 from swarmraft.experiments import build_config
 from swarmraft.experiments.calibration import detector_settings
@@ -44,7 +44,7 @@ def main() -> None:
     config = build_config("realistic", n=(n,), f=(f,), trials=1000 * a.chunks, detector=a.detector)
     params, _ = detector_settings(config, n)
     params.update(param_values(ap, a.param, a.detector))
-    given = {k: v for k, v in params.items() if k in IntegrityParams.model_fields}  # not detection's
+    given = {k: v for k, v in params.items() if k in given_set_fields()}  # not detection's
     sets = sets_leaving_out(n, f)  # as many drones out as there are attackers
     sq, bound, status, cause = [], [], [], []
     search = collections.Counter()

@@ -107,6 +107,12 @@ def test_a_known_set_needs_a_detector_with_a_noise_model(cwd):
         "error: known_set: set_search is a detection parameter of joint, not used with the true honest set",
         cwd,
     )
+    # the rival search's parameters are detection's too, though every statistical detector has them
+    fails_cleanly(
+        ["sweep", "--known-set", "--detector", "clique", "--param", "better_fit_margin=3", "--n", "9"],
+        "error: known_set: better_fit_margin is a detection parameter of clique, not used with the true",
+        cwd,
+    )
 
 
 def test_calibrate_needs_3_drones(cwd):

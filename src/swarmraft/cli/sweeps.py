@@ -69,7 +69,7 @@ from swarmraft.cli.tables import (
     default=None,
     help="give the detector the true honest set instead of detecting it: its estimate and "
     "assessment with perfect detection (clique, fde, joint, shape: the same with their default "
-    "parameters; detection parameters are not used).",
+    "parameters; a detection parameter, the rival search's included, is refused).",
 )
 @WORKERS
 @SCHEDULER

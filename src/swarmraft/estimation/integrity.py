@@ -58,6 +58,9 @@ STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
 _MEMORY_FLOATS = 4_000_000  # per batch of hypothesis matrices (32 MB)
 
 
+DETECTION = {"detection": True}  # a field the rival search uses: not the estimator given a set
+
+
 class IntegrityParams(NoiseParams):
     """What every statistical detector shares: the residual test, the tolerated number of
     attackers, and the integrity budget."""
@@ -78,6 +81,7 @@ class IntegrityParams(NoiseParams):
         ge=0,
         description="search every rival trusted set (each trusted drone swapped for each flagged one, "
         "and left out) when at most this many drones are trusted; above, swap the 2 worst-fitting",
+        json_schema_extra=DETECTION,
     )
     rival_drop_margin: float = Field(
         3.0,
@@ -85,6 +89,7 @@ class IntegrityParams(NoiseParams):
         description="a rival that leaves one more trusted drone out counts when it fits the data it uses "
         "better than the chosen estimate by more than this (chi-square; 3: what leaving out an honest "
         "drone's 3-dof report gains on average)",
+        json_schema_extra=DETECTION,
     )
     max_condition: float = Field(
         1e6, gt=1, description="degenerate above this ratio of a drone's largest to smallest variance"
@@ -95,7 +100,15 @@ class IntegrityParams(NoiseParams):
         description="a would-be ok verdict takes a rival swap (as many drones left out, as many degrees "
         "of freedom) that passes the tests and fits with a chi-square lower by more than this (the "
         "likelier set), where its own verdict is ok; None: off",
+        json_schema_extra=DETECTION,
     )
+
+
+def given_set_fields() -> frozenset[str]:
+    """The `IntegrityParams` an estimate with a given trusted set uses (`given_set`): all but
+    the rival search's (marked ``DETECTION``)."""
+    fields = IntegrityParams.model_fields.items()
+    return frozenset(name for name, f in fields if not (f.json_schema_extra or {}).get("detection"))
 
 
 def resolve_f_max(p: IntegrityParams, n: int, detector: str) -> int:

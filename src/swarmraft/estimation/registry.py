@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from swarmraft.estimation.blas import one_blas_thread
-from swarmraft.estimation.integrity import IntegrityParams, given_set
+from swarmraft.estimation.integrity import IntegrityParams, given_set, given_set_fields
 from swarmraft.estimation.links import run_screened
 from swarmraft.estimation.snapshot import Snapshot, SnapshotBatch, Verdict, VerdictBatch
 
@@ -100,7 +100,7 @@ def check_known_set(detector: str, params: dict[str, Any] | None = None) -> None
     if not issubclass(get_detector(detector).params, IntegrityParams):
         known = ", ".join(n for n in detector_names() if issubclass(get_detector(n).params, IntegrityParams))
         raise ValueError(f"known_set: detector {detector!r} has no noise model to estimate with; use {known}")
-    unused = sorted(set(params or {}) - set(IntegrityParams.model_fields))
+    unused = sorted(set(params or {}) - given_set_fields())
     if unused:
         what = "is a detection parameter" if len(unused) == 1 else "are detection parameters"
         raise ValueError(

@@ -409,7 +409,10 @@ def assess(
         for a, j in zip(*np.nonzero(redo), strict=True):
             Pa = _inverse(J[a] - _hypothesis_matrix(terms, a, j))
             Cj[a, j] = _blocks(Pa)
-            dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
+            # an inverse that is not finite (the hypothesis leaves something unfixed) gives
+            # nan separations (inf * 0), never taken below; `_unfixed` calls its blocks unfixed
+            with np.errstate(invalid="ignore"):
+                dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
         dj = np.where(np.isfinite(exact[s]), exact[s], dj)  # re-solved where the set is small
         # unfixed without drone j: ill-conditioned, or its variance inflated a millionfold
         # (no other measurement of it at all)

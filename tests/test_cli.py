@@ -338,3 +338,15 @@ def test_headings_fit_the_text_width_on_a_wide_console():
     heading("[bold]written[/]", con)
     (line,) = con.export_text().splitlines()
     assert len(line) == TEXT_WIDTH and "written" in line
+
+
+def test_mission_help_names_every_shipped_scenario():
+    """`mission --scenario` takes a shipped scenario's name: its help lists every one (it
+    once missed coordinated-drag and sparse-65, added after the list was written)."""
+    from swarmraft.sim.scenario import shipped_scenarios
+
+    r = CliRunner().invoke(main, ["mission", "--help"], terminal_width=1000)
+    assert r.exit_code == 0
+    help_text = " ".join(r.output.split())
+    missing = [name for name in shipped_scenarios() if name not in help_text]
+    assert not missing and len(shipped_scenarios()) >= 11, missing

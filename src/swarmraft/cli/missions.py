@@ -16,6 +16,7 @@ from swarmraft.cli.app import (
 )
 from swarmraft.cli.live import SPEED, LiveSession, check_live_options, live_options
 from swarmraft.cli.options import OutFolder
+from swarmraft.sim.scenario import shipped_scenarios
 
 
 def mission_figures(result, out: Path) -> list[Path]:
@@ -227,8 +228,7 @@ def print_mission_summary(summary: dict) -> None:
     "scenario_file",
     required=True,
     type=click.Path(dir_okay=False, path_type=Path),
-    help="scenario TOML file, or the name of a shipped one: demo, drag-off, jammed-drone, "
-    "join-leave, leader-crash-under-attack, packet-loss-20, paper-recovery-6-2, -11-5, -16-7",
+    help="scenario TOML file, or the name of a shipped one: " + ", ".join(shipped_scenarios()),
 )
 @click.option("--out", type=OutFolder(), help="output folder [results/<name>]")
 @click.option("--seed", type=int, help="override the scenario's seed")

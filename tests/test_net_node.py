@@ -342,3 +342,34 @@ def test_a_drone_warms_up_its_detector_on_a_flagged_step_as_well():
     assert [r.step for r in records] == [0, 1]
     assert not records[0].faulty.any()
     assert records[1].faulty[4]  # the report moved by 40 m
+
+
+def test_a_report_read_after_its_half_deadline_is_not_held_for_the_censorship_check(tmp_path):
+    """A voter holds a fanned-out report for the censorship check only while its step's half
+    deadline has not passed by the clock, whether or not its `_retry` timer has fired yet (a
+    loaded process's timers fire late): nine processes on 2 loaded cores found their honest
+    leader censoring reports that reached the voters late. A report of a step still to come is
+    held."""
+    from nacl.signing import SigningKey
+
+    from swarmraft.protocol import SwarmDrone
+
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=600))
+    # step 0 began 10 s ago: the half deadlines of steps 0 to 99 have passed, not step 500's
+    path, swarm = prepare_swarm(tmp_path / "run", scenario, 4, time.time() - 10.0)
+    host = DroneHost(load_swarm(path), 1)
+    sender = SwarmDrone(
+        1,
+        host.world.protocol,
+        Keyring({1: SigningKey(load_private_key(swarm.drones[2].key))}, host.drone.keys.public),
+    )
+
+    def report(step: int) -> Report:
+        return sender.make_report(step, np.zeros(3), "gnss", np.full(4, 20.0), None)
+
+    late, due = report(50), report(500)
+    assert not host._note_for_censorship(late)
+    assert 1 not in host.drone.audit.timely.get(50, set())
+    assert host._note_for_censorship(due)
+    assert host.drone.audit.timely[500] == {1}

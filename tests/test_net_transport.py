@@ -155,3 +155,30 @@ def test_a_failing_receive_callback_is_logged_and_does_not_reach_the_event_loop(
     with caplog.at_level(logging.ERROR, logger="swarmraft.net.transport"):
         run(scenario())
     assert "receive callback failed" in caplog.text
+
+
+def test_drain_hands_over_every_datagram_already_waiting_in_order():
+    """The event loop reads one datagram per pass and runs the timers due after it: a leader's
+    step deadline could fire with reports still waiting. ``drain`` reads them all now, in
+    order, at most ``limit``; with nothing waiting it returns 0."""
+
+    async def scenario():
+        inbox = Inbox()
+        a = await UDPTransport.bind("127.0.0.1", 0, Inbox())
+        b = await UDPTransport.bind("127.0.0.1", 0, inbox)
+        try:
+            for i in range(5):
+                a.send(b.local_address, bytes([i]) * 10)
+            # no await since the sends: b's loop has not read any of them
+            assert inbox.queue.empty()
+            assert b.drain(limit=3) == 3
+            assert b.drain() == 2
+            assert b.drain() == 0
+            got = [inbox.queue.get_nowait()[0] for _ in range(5)]
+            assert got == [bytes([i]) * 10 for i in range(5)]
+            assert b.received == 5
+        finally:
+            a.close()
+            b.close()
+
+    run(scenario())

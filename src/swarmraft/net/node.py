@@ -809,6 +809,13 @@ class DroneHost:
             self.counters["deadlines_missed_late"] += 1  # a record this late would be stale
             return
         if self.node.role == Role.LEADER:
+            # the reports already waiting in the socket first: the loop reads one datagram
+            # per pass, and this timer ran before the rest. On 2026-12-03, nine processes on 2
+            # loaded cores: leaders decided steps with their own report alone while the
+            # others' reports waited, and voters holding them found the leader censoring
+            self.counters["drained_at_deadline"] += self.transport.drain()
+            if self.node.role != Role.LEADER:
+                return  # deposed by what was waiting
             self._decide(k)
 
     def _decide(self, k: int) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import socket
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -19,6 +20,11 @@ from swarmraft.net.wire import MAX_DATAGRAM
 
 Address = tuple[str, int]
 Receive = Callable[[bytes, Address], None]
+
+#: the most datagrams `UDPTransport.drain` hands over at once (a flood cannot hold the loop)
+DRAIN_LIMIT = 256
+#: bytes read per datagram (asyncio's own datagram transport reads up to this too)
+MAX_RECEIVE = 256 * 1024
 
 _logger = logging.getLogger(__name__)
 
@@ -61,6 +67,7 @@ class UDPTransport:
     def __init__(self, on_receive: Receive) -> None:
         self._on_receive = on_receive
         self._transport: asyncio.DatagramTransport | None = None
+        self._sock: socket.socket | None = None
         self._closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._numeric: set[str] = set()
         self.local_address: Address = ("", 0)
@@ -72,12 +79,19 @@ class UDPTransport:
         """A transport bound to ``host:port``; BindError if that address cannot be bound."""
         t = cls(on_receive)
         loop = asyncio.get_running_loop()
+        sock = None
         try:
-            transport, _ = await loop.create_datagram_endpoint(lambda: _Datagrams(t), local_addr=(host, port))
+            family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+            sock.setblocking(False)
+            sock.bind(addr)
+            transport, _ = await loop.create_datagram_endpoint(lambda: _Datagrams(t), sock=sock)
         except OSError as exc:
+            if sock is not None:
+                sock.close()
             reason = exc.strerror or str(exc) or type(exc).__name__
             raise BindError(f"cannot bind UDP {host}:{port}: {reason}") from None
-        t._transport = transport
+        t._transport, t._sock = transport, sock
         sockname = transport.get_extra_info("sockname")
         t.local_address = (sockname[0], sockname[1])
         return t
@@ -99,6 +113,28 @@ class UDPTransport:
         self._transport.sendto(data, addr)
         self.sent += 1
         self.bytes_sent += len(data)
+
+    def drain(self, limit: int = DRAIN_LIMIT) -> int:
+        """Hand every datagram already waiting in the socket (at most ``limit``) to the
+        callback now; returns how many. The event loop reads one datagram per pass and runs
+        the timers that are due after it, so on a loaded machine a timer can act while
+        datagrams that came before its moment still wait: a leader whose step deadline fired
+        with a queue of reports decided without them (`DroneHost._deadline` drains first)."""
+        if self._sock is None or self._transport is None or self._transport.is_closing():
+            return 0
+        count = 0
+        for _ in range(limit):
+            try:
+                data, addr = self._sock.recvfrom(MAX_RECEIVE)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:  # an earlier send failed (as `error_received`)
+                self.dropped += 1
+                _logger.debug("UDP error on %s: %s", self.local_address, exc)
+                continue
+            count += 1
+            self._received(data, (addr[0], addr[1]))
+        return count
 
     def _received(self, data: bytes, addr: Address) -> None:
         self.received += 1

@@ -1,9 +1,12 @@
-"""What `joint`'s ``set_search`` costs a leader step that ends in an alarm: the first
-``--alarms`` alarm trials of the sweep's realistic (n, f) cell (seed 2025, chunk 0), each
-verified alone with the search off and on (CPU ms, best of ``--repeat``), with the status
-the search gives. No target of its own: a mission's step has 100 ms at 10 Hz.
+"""What `joint`'s ``set_search`` costs a leader step it runs on (a verdict that ends in an
+alarm, or in a `degenerate` verdict accusing drones): the first ``--alarms`` such trials of
+the sweep's realistic (n, f) cell (seed 2025, chunk 0), each verified alone with the search
+off and on (CPU ms, best of ``--repeat``), with the status before and after. No target of
+its own: a mission's step has 100 ms at 10 Hz. With ``--geometry flat`` (every drone within
+0.5 m of a plane) or ``line``, the trials of that sweep geometry (in a flat layer most
+verdicts are searched).
 
-Run: .venv/bin/python benchmarks/bench_set_search.py [--n 9 --f 4 --alarms 4 --search 300]
+Run: .venv/bin/python benchmarks/bench_set_search.py [--n 9 --f 4 --alarms 4 --search 300] [--geometry flat]
 """
 
 from __future__ import annotations
@@ -34,20 +37,26 @@ def main() -> None:
     ap.add_argument("--alarms", type=int, default=4)
     ap.add_argument("--search", type=int, default=300, help="set_search (sets at most)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--geometry", choices=["cube", "flat", "line"], default="cube")
     a = ap.parse_args()
     if not (a.n >= 3 and 1 <= a.f <= (a.n - 1) // 2 and a.alarms >= 1 and a.search >= 1 and a.repeat >= 1):
         ap.error("need n >= 3, 1 <= f <= (n-1)//2, and --alarms, --search, --repeat >= 1")
-    cfg = build_config("realistic", n=(a.n,), f=(a.f,), trials=1000)
+    cfg = build_config("realistic", n=(a.n,), f=(a.f,), trials=1000, geometry=a.geometry)
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, a.n, a.f, 0)), 1000, a.n, a.f)
     batch = snapshot_batch(cfg, d)
-    alarms = np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[: a.alarms]
-    print(f"joint at ({a.n}, {a.f}), realistic: {len(alarms)} alarm trials, CPU ms (best of {a.repeat})")
-    print(f"{'trial':>6} {'off':>8} {f'set_search={a.search}':>16}  status")
+    v0 = verify_batch(batch, "joint", set_search=0)
+    searched = (v0.status == "alarm") | ((v0.status == "degenerate") & v0.faulty.any(axis=1))
+    alarms = np.flatnonzero(searched)[: a.alarms]
+    print(
+        f"joint at ({a.n}, {a.f}), realistic, {a.geometry}: {int(searched.sum())} of 1000 trials searched "
+        f"({int((v0.status == 'alarm').sum())} alarm), the first {len(alarms)}: CPU ms (best of {a.repeat})"
+    )
+    print(f"{'trial':>6} {'off':>8} {f'set_search={a.search}':>16}  status off -> on")
     for t in alarms:
         one = batch.subset(np.array([t]))
-        off, _ = cpu_ms(lambda one=one: verify_batch(one, "joint"), a.repeat)
-        on, v = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=a.search), a.repeat)
-        print(f"{t:>6} {off:8.1f} {on:16.1f}  {v.status[0]}")
+        off, _ = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=0), a.repeat)
+        on, w = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=a.search), a.repeat)
+        print(f"{t:>6} {off:8.1f} {on:16.1f}  {v0.status[t]} -> {w.status[0]}")
 
 
 if __name__ == "__main__":

@@ -46,13 +46,13 @@ def main() -> None:
     batch = snapshot_batch(cfg, d)
     v0 = verify_batch(batch, "joint", set_search=0)
     searched = (v0.status == "alarm") | ((v0.status == "degenerate") & v0.faulty.any(axis=1))
-    alarms = np.flatnonzero(searched)[: a.alarms]
+    rows = np.flatnonzero(searched)[: a.alarms]
     print(
         f"joint at ({a.n}, {a.f}), realistic, {a.geometry}: {int(searched.sum())} of 1000 trials searched "
-        f"({int((v0.status == 'alarm').sum())} alarm), the first {len(alarms)}: CPU ms (best of {a.repeat})"
+        f"({int((v0.status == 'alarm').sum())} alarm), the first {len(rows)}: CPU ms (best of {a.repeat})"
     )
     print(f"{'trial':>6} {'off':>8} {f'set_search={a.search}':>16}  status off -> on")
-    for t in alarms:
+    for t in rows:
         one = batch.subset(np.array([t]))
         off, _ = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=0), a.repeat)
         on, w = cpu_ms(lambda one=one: verify_batch(one, "joint", set_search=a.search), a.repeat)

@@ -48,9 +48,7 @@ class _Datagrams(asyncio.DatagramProtocol):
         self.owner._received(data, (addr[0], addr[1]))
 
     def error_received(self, exc: Exception) -> None:
-        # an earlier send failed (e.g. ICMP port unreachable): UDP promised nothing
-        self.owner.dropped += 1
-        _logger.debug("UDP error on %s: %s", self.owner.local_address, exc)
+        self.owner._error(exc)
 
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.owner._closed.done():
@@ -128,13 +126,17 @@ class UDPTransport:
                 data, addr = self._sock.recvfrom(MAX_RECEIVE)
             except (BlockingIOError, InterruptedError):
                 break
-            except OSError as exc:  # an earlier send failed (as `error_received`)
-                self.dropped += 1
-                _logger.debug("UDP error on %s: %s", self.local_address, exc)
+            except OSError as exc:
+                self._error(exc)
                 continue
             count += 1
             self._received(data, (addr[0], addr[1]))
         return count
+
+    def _error(self, exc: Exception) -> None:
+        # an earlier send failed (e.g. ICMP port unreachable): UDP promised nothing
+        self.dropped += 1
+        _logger.debug("UDP error on %s: %s", self.local_address, exc)
 
     def _received(self, data: bytes, addr: Address) -> None:
         self.received += 1

@@ -155,3 +155,39 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
             assert not (out & (status != "alarm")).any(), (n, f, t)
             ruled, total = ruled + out.sum(), total + len(sets)
     assert ruled > 0.5 * total
+
+
+def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monkeypatch):
+    """A `degenerate` verdict accusing k drones is replaced only by an answer leaving out
+    fewer, so the search estimates no set leaving out k or more. Flat layer (13, 6), trials 0
+    and 2: `joint` accuses 6 and 5; no set leaving out fewer explains either, so the verdict
+    stands, and the sets estimated are exactly those leaving out fewer that `cannot_pass`
+    does not rule out (the whole search estimated 1 and 86 sets)."""
+    import swarmraft.estimation.set_search as ss
+    from swarmraft.estimation.gnc import JointParams
+    from swarmraft.estimation.joint import cannot_pass
+    from swarmraft.estimation.noise import NoiseModel
+
+    cfg = build_config("realistic", n=(13,), f=(6,), trials=1000, geometry="flat")
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 13, 6, 0)), 1000, 13, 6)
+    sets = np.concatenate([sets_leaving_out(13, k) for k in range(7)])
+    estimated = []
+    real = ss.given_set
+    monkeypatch.setattr(ss, "given_set", lambda b, p, s: estimated.append(s.copy()) or real(b, p, s))
+    for t, accused in ((0, 6), (2, 5)):
+        batch = snapshot_batch(cfg, d).subset(np.array([t]))
+        off = verify_batch(batch, "joint")
+        assert off.status[0] == "degenerate" and off.faulty[0].sum() == accused
+        estimated.clear()
+        on = verify_batch(batch, "joint", set_search=5000)
+        assert on.status[0] == "degenerate" and (on.faulty[0] == off.faulty[0]).all()
+        np.testing.assert_array_equal(on.positions, off.positions)
+        p = JointParams()
+        noise = NoiseModel.of(batch, p, "test")
+        owner = np.zeros(len(sets), int)
+        sigma = noise.range_sigma
+        live = ~cannot_pass(batch.reported, batch.ranges, sets, owner, noise.gnss_cov, sigma, p.p_fa)
+        fewer = sets[live & ((~sets).sum(axis=1) < accused)]
+        got = np.concatenate(estimated) if estimated else np.zeros((0, 13), bool)
+        assert sorted(map(bytes, got)) == sorted(map(bytes, fewer))
+        assert len(sets[live]) > len(fewer)  # the whole search had more to estimate

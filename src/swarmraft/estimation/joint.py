@@ -750,13 +750,35 @@ def cannot_pass(
     with np.errstate(invalid="ignore"):
         gap = np.linalg.norm(reported[:, :, None] - reported[:, None], axis=3) - ranges
     gap = np.where(measured, np.abs(gap), 0.0)
-    own = (measured[owner] & sets[:, :, None]).sum(axis=(1, 2))
+    own = (measured.sum(axis=2)[owner] * sets).sum(axis=1)
     dof = 3 * sets.sum(axis=1) + own - 3 * n
-    limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
+    # the quantile of each distinct dof once (a search's thousands of sets share a few)
+    dofs, which = np.unique(np.maximum(dof, 1), return_inverse=True)
+    limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
     limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
-    both = sets[:, :, None] & sets[:, None, :]
-    beyond = (both & (gap[owner] > limit[:, None, None])).any(axis=(1, 2))
+    beyond = np.zeros(len(sets), dtype=bool)
+    _pair_beyond(gap, np.ascontiguousarray(owner, np.int64), np.ascontiguousarray(sets, bool), limit, beyond)
     return beyond & (dof > 0) & np.isfinite(reported).all(axis=(1, 2))[owner]
+
+
+@njit(cache=True)
+def _pair_beyond(gap, owner, sets, limit, out):  # pragma: no cover - compiled
+    """out[b]: some two drones of set b have a ``gap`` (T, n, n) of trial owner[b] beyond
+    limit[b] (`cannot_pass`; a loop that stops at the first such pair, where numpy built three
+    (B, n, n) arrays: 3.7 ms of a search's step at n = 13, 5,812 sets)."""
+    n = sets.shape[1]
+    for b in range(sets.shape[0]):
+        g = gap[owner[b]]
+        lim = limit[b]
+        for i in range(n):
+            if out[b]:
+                break
+            if not sets[b, i]:
+                continue
+            for j in range(n):
+                if sets[b, j] and g[i, j] > lim:
+                    out[b] = True
+                    break
 
 
 def passes_residual_tests(

@@ -191,3 +191,25 @@ def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monke
         got = np.concatenate(estimated) if estimated else np.zeros((0, 13), bool)
         assert sorted(map(bytes, got)) == sorted(map(bytes, fewer))
         assert len(sets[live]) > len(fewer)  # the whole search had more to estimate
+
+
+def test_a_search_that_needs_more_estimates_than_its_budget_leaves_the_verdict(alarms, monkeypatch):
+    """``search_budget``: trial 1's search estimates some number of sets to find its answer
+    (`ok`: the true honest set) and to check that answer's rivals; one fewer allowed, the
+    alarm stands (a search cut short could miss the explanation or the rival that decides it);
+    exactly that many, the answer is the unlimited search's."""
+    import swarmraft.estimation.set_search as ss
+
+    batch, attackers = alarms
+    one = batch.subset(np.array([0]))
+    estimated = []
+    real = ss.given_set
+    monkeypatch.setattr(ss, "given_set", lambda b, p, s: estimated.append(len(s)) or real(b, p, s))
+    full = verify_batch(one, "joint", set_search=300)
+    need = sum(estimated)
+    assert full.status[0] == "ok" and need > 1
+    short = verify_batch(one, "joint", set_search=300, search_budget=need - 1)
+    assert short.status[0] == "alarm"
+    enough = verify_batch(one, "joint", set_search=300, search_budget=need)
+    assert enough.status[0] == "ok" and (enough.faulty[0] == attackers[0]).all()
+    np.testing.assert_array_equal(enough.positions, full.positions)

@@ -176,6 +176,13 @@ class JointParams(IntegrityParams):
         "trusted set leaving out at most f_max drones, smallest exclusion first, where all of them "
         "are at most this many sets (256 at n = 9, 1,024 at 11, 4,096 at 13; fewer: no search); 0: off",
     )
+    search_budget: int | None = Field(
+        None,
+        ge=1,
+        description="set_search: at most this many sets estimated for one verdict (the sets no "
+        "estimate could pass are not counted); a verdict whose search needs more stands as it is; "
+        "None: no limit",
+    )
 
 
 @register("joint", JointParams, "robust joint estimate (GNC, Geman-McClure) of all positions")
@@ -242,4 +249,4 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         alt = clique_detector(batch.subset(bad), CliqueParams(**{**shared, "f_max": f_max}))
         better = status_rank(alt.status) < status_rank(v.status[bad])
         v = v.with_rows(np.flatnonzero(bad)[better], alt, np.flatnonzero(better))
-    return search_sets(batch, p, noise, v, f_max, p.set_search)
+    return search_sets(batch, p, noise, v, f_max, p.set_search, p.search_budget)

@@ -73,11 +73,18 @@ def _every_set(n: int, f_max: int) -> np.ndarray:
 
 
 def search_sets(
-    batch: SnapshotBatch, p: IntegrityParams, noise: NoiseModel, v: VerdictBatch, f_max: int, cap: int
+    batch: SnapshotBatch,
+    p: IntegrityParams,
+    noise: NoiseModel,
+    v: VerdictBatch,
+    f_max: int,
+    cap: int,
+    budget: int | None = None,
 ) -> VerdictBatch:
     """``v`` with each ``alarm`` verdict, and each ``degenerate`` one that accuses drones,
     replaced by the exhaustive search's answer where it is better (see the module docstring);
-    ``cap`` sets at most per trial (0: no search)."""
+    ``cap`` sets at most per trial (0: no search); ``budget``: sets estimated at most per
+    verdict (None: no limit), a verdict whose search would need more stands as it is."""
     accused = v.faulty.sum(axis=1)
     rows = np.flatnonzero((v.status == "alarm") | ((v.status == "degenerate") & (accused > 0)))
     n = v.faulty.shape[1]
@@ -87,7 +94,7 @@ def search_sets(
     for t in rows:
         # a degenerate verdict is replaced only by an answer leaving out fewer drones
         below = None if v.status[t] == "alarm" else int(accused[t])
-        found = _search(batch, p, noise, t, sets, below)
+        found = _search(batch, p, noise, t, sets, below, budget)
         if found is None:
             continue
         w, k, explained = found
@@ -109,13 +116,16 @@ def _search(
     t: int,
     sets: np.ndarray,
     below: int | None = None,
+    budget: int | None = None,
 ) -> tuple[VerdictBatch, int, bool] | None:
     """The search's verdict for trial t over ``sets`` (S, n; ordered by how many drones each
     leaves out), the fewest drones an explanation leaves out, and True; where no set passes,
     the `alarm` verdict of the set that passes its residual tests (only its separation test
     fails) leaving out fewest drones, with the lowest chi-square, that number and False; None
     where there is none either, or where ``below`` is given and no set leaving out fewer than
-    ``below`` drones explains the data (the caller would not use the answer).
+    ``below`` drones explains the data (the caller would not use the answer), or where the
+    answer needs more than ``budget`` sets estimated (the verdict then stands: a search cut
+    short could miss the explanation, or the rival, that decides it).
 
     The sets are estimated a block of equal size at a time, smallest exclusion first, and the
     search stops as soon as its answer is known: at the first block with an explanation
@@ -137,19 +147,28 @@ def _search(
     positions = np.full((len(sets), n, 3), np.nan)
     blocks: list[Block] = []
 
-    def estimate(k: int) -> None:
+    spent = 0
+
+    def estimate(k: int) -> bool:
+        """Estimates the live sets leaving out k drones; False where the budget cannot."""
+        nonlocal spent
         rows = np.flatnonzero(live & (left_out == k))
+        spent += rows.size
+        if budget is not None and spent > budget:
+            return False
         if rows.size:
             g = given_set(batch.subset(np.full(rows.size, t)), p, sets[rows])
             explains[rows] = g.status != "alarm"
             positions[rows] = g.positions
             blocks.append((k, rows, g))
+        return True
 
     sizes = range(int(left_out.max()) + 1)
     for k in sizes:
         if below is not None and k >= below:
             return None
-        estimate(k)
+        if not estimate(k):
+            return None
         if explains.any():
             break
     if not explains.any():
@@ -161,7 +180,8 @@ def _search(
     if w.status[0] != "ok":
         return w, k, True
     for rest in sizes[k + 1 :]:
-        estimate(rest)
+        if not estimate(rest):
+            return None
     # every other explanation is a rival where it places some drone beyond the answer's
     # levels: two explanations with at most f_max attackers (a set with more drones left
     # out is one too: no margin here, the search answers alarms only)

@@ -28,6 +28,9 @@ only where all its sets, the sum of C(n, k) for k up to ``f_max``, are at most `
 at n = 9, 4,096 at 13, 65,536 at 17. A set that no estimate could pass (`joint.cannot_pass`: most of
 them) is not estimated, which leaves every verdict as it was (a verdict does not depend on
 the others in its batch) and an alarm step at 14-49 ms at n = 9 (`benchmarks/bench_set_search.py`).
+The sets are estimated a block of equal size at a time and the search stops once its answer is
+known (`_search`); ``budget`` (`joint`'s ``search_budget``) bounds the sets estimated for one
+verdict, a verdict whose search needs more standing as it is.
 
 At (9, 4) (realistic, jumps of 10-100 m) `joint`'s alarms are 4 % of the trials and 65 % of
 the attacked drones' squared error: `benchmarks/alarm_sets.py`, and README, "Integrity,

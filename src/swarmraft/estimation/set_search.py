@@ -33,8 +33,8 @@ known (`_search`); ``budget`` (`joint`'s ``search_budget``) bounds the sets esti
 verdict, a verdict whose search needs more standing as it is.
 
 At (9, 4) (realistic, jumps of 10-100 m) `joint`'s alarms are 4 % of the trials and 65 % of
-the attacked drones' squared error: `benchmarks/alarm_sets.py`, and README, "Integrity,
-measured"."""
+the attacked drones' squared error: `benchmarks/alarm_sets.py`, and docs/integrity.md,
+"Where the efficiency goes"."""
 
 from __future__ import annotations
 

@@ -241,3 +241,36 @@ def test_multilateration_kernel_is_the_numpy_expression() -> None:
         dists[rng.random((B, M)) < 0.1] = np.nan
         mask = (rng.random((B, M)) < 0.8) & ~np.isnan(dists)
         same(multilateration_reference(anchors, dists, mask), linear_multilateration(anchors, dists, mask))
+
+
+def test_a_start_identical_to_an_earlier_one_is_solved_once_to_the_same_estimate(monkeypatch) -> None:
+    """`robust_estimate` solves a start that is bit for bit an earlier start of its trial only
+    once (every drone trusted: the closed form, its mirror image, the reports and the prior
+    are one point), and the estimate is what solving every start gives, bit for bit."""
+    import swarmraft.estimation.robust as robust
+    from swarmraft.estimation.noise import NoiseModel
+
+    rng = np.random.default_rng(5)
+    T, n = 6, 9
+    truth = rng.uniform(0, 100, (T, n, 3))
+    reported = truth + rng.normal(0, 1.5, truth.shape)
+    ranges = _distances(truth) + rng.normal(0, 0.1, (T, n, n))
+    trusted = np.ones((T, n), bool)
+    trusted[3:, 2] = False  # half the trials with an untrusted drone: its starts differ
+    prior = np.where(trusted[..., None], np.nan, truth + rng.normal(0, 1.0, truth.shape))
+    noise = NoiseModel(gnss_cov=np.diag([1.5**2, 1.5**2, 3.0**2]), range_sigma=0.1)
+    solved = []
+    real = robust.weighted_gauss_newton
+    monkeypatch.setattr(
+        robust, "weighted_gauss_newton", lambda x0, *a, **k: solved.append(len(x0)) or real(x0, *a, **k)
+    )
+    once = robust.robust_estimate(reported, ranges, trusted, noise, prior, 3.0)
+    # 4 starts a trial; with every drone trusted all 4 are the reports (the prior is of
+    # untrusted drones only): one solve, against 4 where drone 2 is untrusted
+    assert solved[0] == 3 * 1 + 3 * 4
+    solved.clear()
+    monkeypatch.setattr(robust, "_first_copy", lambda s: np.arange(s.shape[0] * s.shape[1]))
+    every = robust.robust_estimate(reported, ranges, trusted, noise, prior, 3.0)
+    assert solved[0] == T * 4
+    for field in ("x", "cost", "converged", "ambiguous"):
+        np.testing.assert_array_equal(getattr(once, field), getattr(every, field))

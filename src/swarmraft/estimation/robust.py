@@ -63,19 +63,30 @@ def robust_estimate(
         x0.append(np.where(np.isnan(pr), reported, pr))
     x0 += [np.where(np.isfinite(s), s, reported) for s in starts]
     S = len(x0)
-    X, cost, conv = weighted_gauss_newton(
-        np.concatenate(x0),
-        np.tile(reported, (S, 1, 1)),
-        np.tile(ranges, (S, 1, 1)),
-        np.tile(gnss_w, (S, 1)),
-        np.tile(range_w, (S, 1, 1)),
+    # a start identical to an earlier one of its trial (bit for bit: with every drone trusted
+    # the closed form, its mirror image and the reports are one point) is solved once; the
+    # solver treats each problem alone, so the copy is what solving it again would give
+    X0 = np.concatenate(x0)
+    source = _first_copy(X0.reshape(S, T, 3 * n))
+    rows = np.flatnonzero(source == np.arange(S * T))
+    r_t = rows % T
+    Xs, cs, oks = weighted_gauss_newton(
+        X0[rows],
+        reported[r_t],
+        ranges[r_t],
+        gnss_w[r_t],
+        range_w[r_t],
         noise.gnss_cov,
         noise.range_sigma,
         iters,
-        prior=None if pr is None else np.tile(pr, (S, 1, 1)),
+        prior=None if pr is None else pr[r_t],
         prior_sigma=prior_sigma,
         full=True,
     )
+    X = np.empty((S * T, n, 3))
+    cost, conv = np.empty(S * T), np.empty(S * T, dtype=bool)
+    X[rows], cost[rows], conv[rows] = Xs, cs, oks
+    X, cost, conv = X[source], cost[source], conv[source]
     X, cost, conv = X.reshape(S, T, n, 3), cost.reshape(S, T), conv.reshape(S, T)
     score = np.where(conv, cost, np.inf)
     best = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
@@ -187,6 +198,19 @@ def robust_estimate(
     own_near = q <= own[None] + window
     ambiguous = ((near[..., None] | own_near) & apart).any(axis=0) & ~trusted
     return Estimate(x, c, ok, ambiguous)
+
+
+def _first_copy(starts: np.ndarray) -> np.ndarray:
+    """For starts (S, T, m), the flat index s T + t of each one's first bit-for-bit copy
+    among the starts of its trial t (itself where none comes before it)."""
+    S, T, _ = starts.shape
+    bits = np.ascontiguousarray(starts).view(np.uint64)
+    source = np.arange(S * T).reshape(S, T)
+    for s in range(1, S):
+        for e in range(s):
+            same = (bits[s] == bits[e]).all(axis=1) & (source[s] == s * T + np.arange(T))
+            source[s][same] = source[e][same]
+    return source.ravel()
 
 
 def _placed(anchors: np.ndarray, x: np.ndarray, trusted: np.ndarray) -> np.ndarray:

@@ -175,6 +175,33 @@ def test_a_forged_report_is_refused_though_its_genuine_twin_arrived_directly() -
     assert got is None and reason == "drone 5's report signature"
 
 
+def test_a_report_noted_from_its_bytes_is_held_exactly_as_one_noted_decoded() -> None:
+    """`Auditor.note_report_bytes` (the simulator's fan-out: decoded only where the signature
+    must be checked) holds what `note_report` holds, with the memo shared between voters as
+    in the simulator: a forged copy (the genuine signature kept) is refused after its genuine
+    twin was held, a second copy and a copy for a closed step are not held again."""
+    for from_bytes in (False, True):
+        memo: dict = {}
+        v, chain, _ = voter_through(12)
+        w, _, _ = voter_through(12)
+        v.audit.cache = w.audit.cache = memo
+        rec = StepRecord.decode(chain[12])
+        r = rec.reports[4]
+        forged = replace(r, position=r.position + [5.0, 0, 0])
+
+        def note(auditor, report, from_bytes=from_bytes):  # noqa: ANN001, ANN202
+            data = report.encode()
+            return auditor.note_report_bytes(data) if from_bytes else auditor.note_report(report, data)
+
+        assert note(v.audit, r) and not note(v.audit, r)  # held once
+        assert not note(w.audit, forged)  # the memo holds the genuine bytes, not the drone
+        assert note(w.audit, r)
+        w.audit.close_step(12)
+        other = rec.reports[5]
+        assert not note(w.audit, other)  # its step is closed here
+        assert v.audit.timely[12] == {4} and w.audit.timely[12] == {4}
+
+
 def test_a_record_whose_digest_is_not_its_reports_is_refused() -> None:
     v, chain, keys = voter_through(12)
     rec = StepRecord.decode(chain[12])

@@ -245,18 +245,29 @@ class Auditor:
         """A report received directly (the fan-out): held for its step if its signature
         verifies and the step's deadline has not passed here. ``data``: its bytes, the key
         of the shared memo (``cache``) of the signature check."""
-        if report.step in self.closed or report.drone in self.timely.get(report.step, ()):
+        return self._note(report.step, report.drone, data, lambda: report)
+
+    def note_report_bytes(self, data: bytes) -> bool:
+        """`note_report` of an encoded report, decoded only where its signature must be
+        checked: a copy for a step already closed or already held, or whose check the memo
+        holds, needs only its step and drone (in a 17-drone mission each report reaches 15
+        voters, and decoding every copy was a tenth of the simulator's time)."""
+        step, drone = Report.head(data)
+        return self._note(step, drone, data, lambda: Report.decode(data))
+
+    def _note(self, step: int, drone: int, data: bytes | None, report) -> bool:  # noqa: ANN001
+        if step in self.closed or drone in self.timely.get(step, ()):
             return False
         if self.cache is not None and data is not None:
             key = b"report" + _digest(data)
             if key not in self.cache:
-                self.cache[key] = self.drone.keys.verify(report)
+                self.cache[key] = self.drone.keys.verify(report())
             ok = self.cache[key]
         else:
-            ok = self.drone.keys.verify(report)
+            ok = self.drone.keys.verify(report())
         if not ok:
             return False
-        self.timely.setdefault(report.step, set()).add(report.drone)
+        self.timely.setdefault(step, set()).add(drone)
         return True
 
     def close_step(self, step: int) -> None:

@@ -26,6 +26,7 @@ out, so a common slow drag of several drones stands out of it before any one dro
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
@@ -144,17 +145,27 @@ def record_drift(reports: dict, n: int, trusted: np.ndarray, model: DriftModel) 
     return drift_test(window_innovations(reports, n, model.windows), trusted, model)
 
 
-def realigns(rec: StepRecord, i: int, model: DriftModel | None) -> bool:
+def realign_test(rec: StepRecord, model: DriftModel) -> DriftVerdict:
+    """The drag-off test `realigns` reads: on the record's reports, the swarm-wide mean over
+    the drones it trusts and has reports of."""
+    return record_drift({r.drone: r for r in rec.reports}, len(rec.faulty), ~rec.faulty & ~rec.missing, model)
+
+
+def realigns(
+    rec: StepRecord, i: int, model: DriftModel | None, test: Callable[[], DriftVerdict] | None = None
+) -> bool:
     """Whether drone i aligns its INS track to its position in the committed record ``rec``:
     only if the record trusts it (not flagged), is settled (not alarm or unidentifiable), its
     own drag-off test does not find it suspect, and the swarm is not *being pulled*: the
     mean innovation of the drones the record trusts is not above the suspect level of the
     drag-off test. Otherwise its track keeps dead reckoning from its last alignment, so a drag
     that pulls the committed positions does not pull the tracks. A pure function of the
-    record (its reports carry the test's input): every drone decides the same."""
+    record (its reports carry the test's input): every drone decides the same. ``test``: where
+    the caller has it, `realign_test` of this record (the simulator runs it once per record for
+    every drone that applies it)."""
     if rec.faulty[i] or rec.status in UNSETTLED or not np.isfinite(rec.positions[i]).all():
         return False
     if model is None:
         return True
-    v = record_drift({r.drone: r for r in rec.reports}, len(rec.faulty), ~rec.faulty & ~rec.missing, model)
+    v = test() if test is not None else realign_test(rec, model)
     return not (v.suspect[i] or v.pulled)

@@ -73,6 +73,12 @@ class Report:
     def encode(self) -> bytes:
         return self.body() + self.signature
 
+    @staticmethod
+    def head(data: bytes) -> tuple[int, int]:
+        """The step and drone of an encoded report, without decoding the rest."""
+        step, drone, _, _, _ = _REPORT_HEAD.unpack_from(data)
+        return step, drone
+
     @classmethod
     def decode(cls, data: bytes) -> Report:
         step, drone, src, parts, n = _REPORT_HEAD.unpack_from(data)

@@ -170,3 +170,35 @@ def test_auditors_reproduce_every_drag_record_from_its_evidence(coordinated_drag
     mission, _, _ = coordinated_drag
     audit = mission.audit_summary()
     assert audit["refused_entries"] == 0 and audit["refused_applies"] == 0
+
+
+def test_a_remembered_innovation_is_the_one_computed_afresh_and_cannot_be_changed():
+    """`ScenarioWorld.innovation` remembers its answers (a bounded memo: the drag-off test
+    asks for each window again M - 1 times): asked in any order, twice, or after the memo
+    forgot it, the answer is bit for bit what a fresh world computes, and read-only (a caller
+    that changed it would change every later report)."""
+    from swarmraft.sim import sensing
+    from swarmraft.sim.scenario import Scenario
+
+    sc = Scenario(
+        name="t",
+        seed=4,
+        drones=5,
+        duration_s=20.0,
+        spoof=[{"kind": "drag", "drones": [2], "start_s": 5, "rate": 0.3}],
+    )
+    w = ScenarioWorld.build(sc)
+    keys = [(k, i) for k in range(sc.steps, -1, -7) for i in range(5)]
+    first = [w.innovation(k, i) for k, i in keys]
+    assert sum(x is not None for x in first) > len(keys) // 2
+    w._innovations = sensing.BoundedMemo(3)  # forgets nearly everything
+    for (k, i), a in zip(keys, first, strict=True):
+        fresh = ScenarioWorld.build(sc)._innovation(k, i)
+        for b in (w.innovation(k, i), w.innovation(k, i), fresh):
+            assert (a is None) == (b is None)
+            if a is not None:
+                assert a.tobytes() == b.tobytes()
+        if a is not None:
+            with pytest.raises(ValueError):
+                a[0] = 1.0
+    assert len(w._innovations) <= 3

@@ -10,7 +10,7 @@ step k, except the INS estimate, which also depends on where the drone was last 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,12 +18,18 @@ from swarmraft.estimation import SnapshotBatch
 from swarmraft.estimation.calibration import calibrate
 from swarmraft.protocol import ProtocolConfig
 from swarmraft.protocol.drift import DriftModel
+from swarmraft.protocol.memo import BoundedMemo
 from swarmraft.sim.scenario import Scenario
 from swarmraft.world import GaussMarkov, UWBRanging
 from swarmraft.world.attacks import enlarge
 from swarmraft.world.ins import G, InsDrift, InsGrade, ins_grade, ins_sigma
 from swarmraft.world.motion import Trajectory, formation_flight, static_swarm
 from swarmraft.world.timeline import AttackTimeline, Outage, Spoof
+
+#: at most this many (step, drone) innovations `ScenarioWorld.innovation` remembers (the
+#: newest; about 40 MB): a window's innovation is asked for again for M - 1 more windows of W
+#: steps, by n drones, so the memo holds n (M + 1) W of them where that is fewer
+INNOVATIONS_KEPT = 1 << 17
 
 
 @dataclass
@@ -46,6 +52,11 @@ class ScenarioWorld:
     calibration: dict[str, float]  # the paper detector's tau and epsilon, when calibrated here
     protocol: ProtocolConfig
     rng_keys: np.random.Generator  # the simulator's report keys are drawn from it
+    _innovations: BoundedMemo = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        reuse = self.sc.drones * (self.sc.protocol.drift_windows + 1) * self.window_steps
+        self._innovations = BoundedMemo(max(1, min(reuse, INNOVATIONS_KEPT)))
 
     @classmethod
     def build(cls, sc: Scenario) -> ScenarioWorld:
@@ -181,7 +192,16 @@ class ScenarioWorld:
     def innovation(self, k: int, i: int) -> np.ndarray | None:
         """GNSS-minus-INS innovation of drone i over the window: how far its GNSS fix moved in
         the last window minus how far its INS says it moved (true motion plus the drift of
-        integrating over the window). None without both fixes."""
+        integrating over the window). None without both fixes. Read-only, and remembered for
+        the newest INNOVATIONS_KEPT (k, i): a report carries the windows ending at k, k - W,
+        ..., so each is asked for again W steps later, and by every resent report (97,434
+        calls for 10,200 windows in a 17-drone, 60 s mission)."""
+        key = (k, i)
+        if key not in self._innovations:
+            self._innovations[key] = self._innovation(k, i)
+        return self._innovations[key]
+
+    def _innovation(self, k: int, i: int) -> np.ndarray | None:
         base = k - self.window_steps
         if base < 0 or not (self.has_fix[k, i] and self.has_fix[base, i]):
             return None
@@ -191,7 +211,9 @@ class ScenarioWorld:
         w = self.traj.t[k] - self.traj.t[base]
         own = InsDrift(self.drift.accel[i : i + 1], self.drift.gyro[i : i + 1])
         ins_moved = self.traj.positions[k, i] - self.traj.positions[base, i] + own.error(np.full(1, w))[0]
-        return (now - then) - ins_moved
+        out = (now - then) - ins_moved
+        out.flags.writeable = False
+        return out
 
     def innovations(self, k: int, i: int) -> np.ndarray | None:
         """(M, 3) drone i's innovations over its last M windows (the drag-off test's input,

@@ -35,7 +35,6 @@ Pure logic: the host feeds reports (`note_report`), closes steps at their deadli
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from typing import TYPE_CHECKING
 
@@ -62,10 +61,6 @@ POSITION_TOL_M = 1e-3
 CENSOR = (10, 20)
 #: steps of reports, records and omissions kept
 KEEP_STEPS = 64
-
-
-def _digest(data: bytes) -> bytes:
-    return hashlib.sha256(data).digest()
 
 
 def _close(a: np.ndarray | None, b: np.ndarray | None, tol: float) -> bool:
@@ -259,7 +254,7 @@ class Auditor:
         if step in self.closed or drone in self.timely.get(step, ()):
             return False
         if self.cache is not None and data is not None:
-            key = b"report" + _digest(data)
+            key = b"report" + record_digest(data)  # one bytes object per fanned-out report
             if key not in self.cache:
                 self.cache[key] = self.drone.keys.verify(report())
             ok = self.cache[key]

@@ -18,7 +18,7 @@ from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.protocol.drift import DriftVerdict, realign_test, realigns
 from swarmraft.protocol.drone import RecordMemo
-from swarmraft.protocol.memo import BoundedMemo
+from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.agreement import RecordAgreement
@@ -232,7 +232,7 @@ class Mission:
         self._lie = next((f for f in sc.fault if f.kind == "lying-leader"), None)
         self._lying = False
         self.falsified: dict[bytes, int] = {}  # digest of a falsified record -> its step
-        self._realign_tests: dict[bytes, DriftVerdict] = {}  # `_realign_test` by record digest
+        self._realign_tests = BoundedMemo(64)  # `_realign_test` by record digest
         self.first_lie_s: float | None = None
         self.refusals: list[tuple[float, int, int, str]] = []  # (s, node, step, reason)
         self.suspicions: list[tuple[float, int, str]] = []  # (s, node, why)
@@ -527,11 +527,9 @@ class Mission:
     def _realign_test(self, data: bytes, rec: StepRecord) -> DriftVerdict:
         """`drift.realign_test` of the record in ``data``, once per record (every drone that
         applies it would run the same test on the same bytes: 8 % of a 17-drone mission)."""
-        key = hashlib.sha256(data).digest()
+        key = record_digest(data)
         test = self._realign_tests.get(key)
         if test is None:
-            if len(self._realign_tests) >= 64:
-                self._realign_tests.clear()
             test = self._realign_tests[key] = realign_test(rec, self.pcfg.drift)
         return test
 

@@ -142,10 +142,10 @@ def _search(
     # a set explains the data when it passes its tests: `ok`, or `degenerate` where the
     # geometry leaves some drone unfixed (an explanation all the same); a set that no estimate
     # could pass is not estimated
+    # (checked a block at a time, where the block is estimated: a set's check is its own)
     reported, ranges = np.asarray(one.reported, float), np.asarray(one.ranges, float)
-    owner = np.zeros(len(sets), dtype=int)
-    live = ~cannot_pass(reported, ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p.p_fa)
     left_out = (~sets).sum(axis=1)
+    edges = np.searchsorted(left_out, np.arange(int(left_out.max()) + 2))  # blocks: sets by k
     explains = np.zeros(len(sets), dtype=bool)
     positions = np.full((len(sets), n, 3), np.nan)
     blocks: list[Block] = []
@@ -155,7 +155,9 @@ def _search(
     def estimate(k: int) -> bool:
         """Estimates the live sets leaving out k drones; False where the budget cannot."""
         nonlocal spent
-        rows = np.flatnonzero(live & (left_out == k))
+        block = np.arange(edges[k], edges[k + 1])
+        owner, sigma = np.zeros(block.size, dtype=int), noise.range_sigma
+        rows = block[~cannot_pass(reported, ranges, sets[block], owner, noise.gnss_cov, sigma, p.p_fa)]
         spent += rows.size
         if budget is not None and spent > budget:
             return False

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from swarmraft.estimation import Snapshot, SnapshotBatch, verify, verify_batch
-from swarmraft.estimation.shape import procrustes_fit, shape_ranges, triples
+from swarmraft.estimation.registrations import procrustes_fit, shape_ranges, triples
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import draw, snapshot_batch
 from swarmraft.world.geometry import true_distances

@@ -18,7 +18,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from swarmraft.estimation.paper import PaperParams, anchor_distances, recover, report_distances
+from swarmraft.estimation.pairwise import report_distances
+from swarmraft.estimation.paper import PaperParams, anchor_distances, recover
 from swarmraft.estimation.snapshot import SnapshotBatch
 
 

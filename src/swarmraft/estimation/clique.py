@@ -46,7 +46,7 @@ from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_ma
 from swarmraft.estimation.joint import joint_estimate, residual_statistics, tests_pass
 from swarmraft.estimation.links import SPARSE_SHARE, linked_share
 from swarmraft.estimation.noise import NoiseModel
-from swarmraft.estimation.paper import report_distances
+from swarmraft.estimation.pairwise import consistency_graph
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.rivals import larger_rivals
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
@@ -63,30 +63,6 @@ class CliqueParams(IntegrityParams):
         description="maximal cliques enumerated per snapshot at most; beyond: unidentifiable (or "
         "alarm if none seen passes), never a guess",
     )
-
-
-def consistency_graph(
-    reported: np.ndarray, ranges: np.ndarray, noise: NoiseModel, k: float, tol: float = 0.0
-) -> np.ndarray:
-    """Adjacency (T, n, n) of the pairwise consistency graph."""
-    T, n, _ = reported.shape
-    dhat = report_distances(reported)
-    diff = reported[:, :, None, :] - reported[:, None, :, :]
-    u = diff / np.where(dhat > 0, dhat, 1.0)[..., None]
-    fwd, back = ranges, np.swapaxes(ranges, 1, 2)
-    both = ~np.isnan(fwd) & ~np.isnan(back)
-    cnt = (~np.isnan(fwd)).astype(float) + (~np.isnan(back))
-    dbar = np.where(cnt > 0, (np.nan_to_num(fwd) + np.nan_to_num(back)) / np.maximum(cnt, 1), np.nan)
-    s_d2 = noise.range_sigma**2
-    var = 2 * noise.los_variance(u) + s_d2 / np.maximum(cnt, 1)
-    with np.errstate(invalid="ignore"):
-        ok = np.abs(dhat - dbar) <= np.maximum(k * np.sqrt(var), tol)
-        agree = np.abs(fwd - back) <= np.maximum(k * np.sqrt(2 * s_d2), tol)
-    # a pair without a range (out of range, or a link the screening dropped) gives no
-    # evidence against either drone: consistent
-    ok = np.where(cnt > 0, ok & np.where(both, agree, True), True)
-    ok[:, np.arange(n), np.arange(n)] = False
-    return ok
 
 
 def candidate_sets(adj: np.ndarray, f_max: int, cap: int | None = None) -> tuple[list[frozenset[int]], bool]:

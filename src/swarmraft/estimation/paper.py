@@ -18,6 +18,7 @@ from pydantic import ConfigDict, Field
 from swarmraft.estimation.integrity import IntegrityParams, finish
 from swarmraft.estimation.link_params import LinkParams
 from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.pairwise import report_distances
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 from swarmraft.estimation.trust_region import linear_multilateration, solve_ranges
@@ -51,12 +52,6 @@ class PaperParams(LinkParams):
         description="stage 2: the reference code's solver, or the joint estimate (closed-form "
         "start, Gauss-Newton, noise weights, geometry check; no re-marking)",
     )
-
-
-def report_distances(reported: np.ndarray) -> np.ndarray:
-    """||z_A - z_B|| for every pair of reports: (T, n, 3) -> (T, n, n)."""
-    diff = reported[:, :, None, :] - reported[:, None, :, :]
-    return np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
 
 
 def pairwise_votes(reported: np.ndarray, ranges: np.ndarray, tau: float) -> np.ndarray:

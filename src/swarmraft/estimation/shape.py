@@ -47,315 +47,36 @@ residual tests judge it.
 
 from __future__ import annotations
 
-import math
-from functools import lru_cache
-from itertools import combinations
-
 import numpy as np
-from numba import njit
 from pydantic import Field
 
-from swarmraft.estimation.clique import consistency_graph
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max
-from swarmraft.estimation.joint import chi2_quantile, joint_estimate, residual_statistics, tests_pass
-from swarmraft.estimation.links import TAMPER_SHARE, range_shape
 from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.registrations import (
+    MAX_SETS,
+    MAX_TRIPLES,
+    PAIR_K,
+    REFITS,
+    candidates,
+    distinct_explanations,
+)
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
-
-_GOLDEN = (0.7548776662466927, 0.5698402909980532)  # the R2 sequence (Roberts 2018)
 
 
 class ShapeParams(IntegrityParams):
     max_triples: int = Field(
-        6000,
+        MAX_TRIPLES,
         ge=1,
         description="registration seeds: every triple of drones up to this many, else a fixed choice",
     )
-    max_sets: int = Field(32, ge=2, description="distinct registrations per snapshot; beyond: unidentifiable")
-    refits: int = Field(5, ge=1, le=50, description="refits of each registration on its inliers at most")
+    max_sets: int = Field(
+        MAX_SETS, ge=2, description="distinct registrations per snapshot; beyond: unidentifiable"
+    )
+    refits: int = Field(REFITS, ge=1, le=50, description="refits of each registration on its inliers at most")
     k: float = Field(
-        5.0, gt=0, description="pairwise consistency (seed triangles) and two-way agreement, sigmas"
+        PAIR_K, gt=0, description="pairwise consistency (seed triangles) and two-way agreement, sigmas"
     )
-
-
-@lru_cache(maxsize=16)
-def triples(n: int, cap: int) -> np.ndarray:
-    """Triples of drone indices (m, 3): all of them if there are at most ``cap``, else ``cap``
-    distinct ones from a fixed low-discrepancy sequence (the same for every call). Read-only,
-    and kept: the sequence's de-duplication was 18 ms of a 65-drone step."""
-    t = _triples(n, cap)
-    t.flags.writeable = False
-    return t
-
-
-def _triples(n: int, cap: int) -> np.ndarray:
-    if n < 3:
-        return np.zeros((0, 3), dtype=int)
-    if math.comb(n, 3) <= cap:
-        return np.array(list(combinations(range(n), 3)), dtype=int)
-    m = np.arange(4 * cap)
-    i = m % n
-    j = (i + 1 + (np.floor((m * _GOLDEN[0]) % 1 * (n - 1))).astype(int)) % n
-    k = (i + 1 + (np.floor((m * _GOLDEN[1]) % 1 * (n - 1))).astype(int)) % n
-    t = np.sort(np.stack([i, j, k], axis=1), axis=1)
-    t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2])]
-    _, first = np.unique(t, axis=0, return_index=True)
-    return t[np.sort(first)[:cap]]
-
-
-def shape_ranges(ranges: np.ndarray, sigma: float, k: float) -> np.ndarray:
-    """Which ranges (T, n, n) the shape is fitted to: every measured one, except where the two
-    ways of a link disagree beyond ``k`` sqrt(2) sigma: then the way measured by a drone that
-    disagrees with more than half of its two-way links (it tampers with its own ranges) is
-    dropped and the other kept, or both are dropped if neither drone does."""
-    n = ranges.shape[1]
-    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
-    both = meas & np.swapaxes(meas, 1, 2)
-    with np.errstate(invalid="ignore"):
-        disagree = both & (np.abs(ranges - np.swapaxes(ranges, 1, 2)) > k * np.sqrt(2) * sigma)
-    tamper = disagree.sum(axis=2) > TAMPER_SHARE * np.maximum(both.sum(axis=2), 1)
-    keep_way = ~tamper[:, :, None] & tamper[:, None, :]  # i honest about a link to tamperer j
-    return meas & ~tamper[:, :, None] & (~disagree | keep_way)
-
-
-@njit(cache=True)
-def _procrustes(y, z, w, hand, R, tr):  # pragma: no cover - compiled
-    """Weighted orthogonal Procrustes (Kabsch): R (3, 3) with det R = ``hand`` (+1 or -1) and
-    tr (3,) minimising sum_i w_i |z_i - R y_i - tr|^2 over points y, z (n, 3), in place."""
-    n = y.shape[0]
-    sw = 0.0
-    yc = np.zeros(3)
-    zc = np.zeros(3)
-    for i in range(n):
-        sw += w[i]
-        for a in range(3):
-            yc[a] += w[i] * y[i, a]
-            zc[a] += w[i] * z[i, a]
-    for a in range(3):
-        yc[a] /= sw
-        zc[a] /= sw
-    C = np.zeros((3, 3))
-    for i in range(n):
-        if w[i] > 0:
-            for a in range(3):
-                for b in range(3):
-                    C[a, b] += w[i] * (z[i, a] - zc[a]) * (y[i, b] - yc[b])
-    U, _, Vt = np.linalg.svd(C)
-    d = hand * np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    for a in range(3):
-        for b in range(3):
-            R[a, b] = U[a, 0] * Vt[0, b] + U[a, 1] * Vt[1, b] + d * U[a, 2] * Vt[2, b]
-    for a in range(3):
-        tr[a] = zc[a]
-        for b in range(3):
-            tr[a] -= R[a, b] * yc[b]
-
-
-def procrustes_fit(y: np.ndarray, z: np.ndarray, w: np.ndarray, hand: float) -> tuple[np.ndarray, np.ndarray]:
-    """The rigid motion (R (3, 3) with det R = ``hand``, t (3,)) that best carries points y
-    (n, 3) onto z (n, 3) in weighted least squares (weights w (n,)): z ~ R y + t."""
-    R, t = np.zeros((3, 3)), np.zeros(3)
-    _procrustes(
-        np.ascontiguousarray(y, float), np.ascontiguousarray(z, float), np.asarray(w, float), hand, R, t
-    )
-    return R, t
-
-
-@njit(cache=True)
-def _register(y, z, w, hand, Winv, threshold, placed, inl, R, tr):  # pragma: no cover - compiled
-    """One registration of shape y (n, 3) to reports z with weights w (n,) and det R =
-    ``hand`` (`_procrustes`); the placed drones within ``threshold`` of it (whitened by Winv)
-    into ``inl`` (n,); returns how many."""
-    _procrustes(y, z, w, hand, R, tr)
-    cnt = 0
-    e = np.zeros(3)
-    for i in range(y.shape[0]):
-        for a in range(3):
-            e[a] = z[i, a] - tr[a]
-            for b in range(3):
-                e[a] -= R[a, b] * y[i, b]
-        q = 0.0
-        for a in range(3):
-            for b in range(3):
-                q += e[a] * Winv[a, b] * e[b]
-        inl[i] = placed[i] and q <= threshold
-        if inl[i]:
-            cnt += 1
-    return cnt
-
-
-@njit(cache=True)
-def _registration_kernel(
-    shape, reported, placed, adj, tri, Winv, threshold, refits, min_size, sets, hands, count
-):  # pragma: no cover - compiled
-    """Per trial, the distinct inlier sets of at least ``min_size`` drones of the rigid
-    registrations grown from the triples ``tri`` that are triangles of the consistency graph
-    ``adj``, each with both handednesses unless a set found with that handedness holds it;
-    at most sets.shape[1] of them (count[t] one more than that when the cap cut the search
-    short). A triangle inside a registration of the other handedness is tried: colluders
-    reflected about three pivots with every honest drone near the pivots' plane make one
-    registration of all the drones, and the honest drones' own one lies inside it."""
-    T, n, _ = shape.shape
-    M = sets.shape[1]
-    w = np.zeros(n)
-    inl = np.zeros(n, dtype=np.bool_)
-    R = np.zeros((3, 3))
-    tr = np.zeros(3)
-    for t in range(T):
-        c = 0
-        for m in range(tri.shape[0]):
-            i, j, k = tri[m, 0], tri[m, 1], tri[m, 2]
-            if not (placed[t, i] and placed[t, j] and placed[t, k]):
-                continue
-            if not (adj[t, i, j] and adj[t, i, k] and adj[t, j, k]):
-                continue
-            for hi in range(2):
-                hand = 1.0 - 2.0 * hi
-                covered = False
-                for s in range(min(c, M)):
-                    if hands[t, s] == hand and sets[t, s, i] and sets[t, s, j] and sets[t, s, k]:
-                        covered = True
-                        break
-                if covered:
-                    continue
-                w[:] = 0.0
-                w[i] = w[j] = w[k] = 1.0
-                ok = False
-                for _ in range(refits + 1):
-                    if _register(shape[t], reported[t], w, hand, Winv, threshold, placed[t], inl, R, tr) < 3:
-                        ok = False
-                        break
-                    ok = True
-                    same = True
-                    for a in range(n):
-                        if (w[a] > 0) != inl[a]:
-                            same = False
-                        w[a] = 1.0 if inl[a] else 0.0
-                    if same:
-                        break
-                if not ok or inl.sum() < min_size:
-                    continue
-                dup = False
-                for s in range(min(c, M)):
-                    eq = True
-                    for a in range(n):
-                        if sets[t, s, a] != inl[a]:
-                            eq = False
-                            break
-                    if eq:
-                        dup = True
-                        break
-                if dup:
-                    continue
-                if c < M:
-                    sets[t, c, :] = inl
-                    hands[t, c] = hand
-                c += 1
-                if c > M:
-                    break
-            if c > M:
-                break
-        count[t] = c
-
-
-@njit(cache=True)
-def _registered_kernel(shape, reported, masks, hands, placed, out):  # pragma: no cover - compiled
-    """For each candidate b: the shape registered (`_procrustes`) to the reports of its placed
-    members with its handedness, every placed drone at its registered position and the others
-    at their reports, into out[b] (n, 3); the reports where fewer than 3 members are placed."""
-    B, n, _ = shape.shape
-    R = np.zeros((3, 3))
-    tr = np.zeros(3)
-    w = np.zeros(n)
-    for b in range(B):
-        cnt = 0
-        for i in range(n):
-            w[i] = 1.0 if masks[b, i] and placed[b, i] else 0.0
-            cnt += masks[b, i] and placed[b, i]
-        out[b] = reported[b]
-        if cnt < 3:
-            continue
-        _procrustes(shape[b], reported[b], w, hands[b], R, tr)
-        for i in range(n):
-            if placed[b, i]:
-                for a in range(3):
-                    out[b, i, a] = (
-                        tr[a] + R[a, 0] * shape[b, i, 0] + R[a, 1] * shape[b, i, 1] + R[a, 2] * shape[b, i, 2]
-                    )
-
-
-def registered(
-    shape: np.ndarray, reported: np.ndarray, masks: np.ndarray, hands: np.ndarray, placed: np.ndarray
-) -> np.ndarray:
-    """Positions (B, n, 3): each candidate's registration of the shape (B, n, 3) to the
-    reports of its members ``masks`` (B, n) with handedness ``hands`` (B,) (unplaced drones
-    at their reports): the start of its joint estimate, every drone already where the
-    ranges put it relative to the trusted ones."""
-    out = np.empty_like(np.asarray(reported, float))
-    _registered_kernel(
-        np.ascontiguousarray(shape, float),
-        np.ascontiguousarray(reported, float),
-        np.ascontiguousarray(masks, np.bool_),
-        np.ascontiguousarray(hands, float),
-        np.ascontiguousarray(placed, np.bool_),
-        out,
-    )
-    return out
-
-
-def registration_sets(
-    shape: np.ndarray,
-    reported: np.ndarray,
-    placed: np.ndarray,
-    adj: np.ndarray,
-    cov: np.ndarray,
-    threshold: float,
-    cap: int,
-    refits: int,
-    max_sets: int,
-    min_size: int,
-) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """Per trial, the distinct inlier sets (m, n) and their handednesses (m,) of the rigid
-    registrations of the shape (T, n, 3) to the reports (module docstring), grown from
-    triangles of the consistency graph ``adj`` (T, n, n) of ``placed`` drones; inliers:
-    whitened squared residual (covariance ``cov``) <= ``threshold``; only sets of
-    ``min_size`` drones or more (a candidate for the honest set leaves at most f_max out).
-    Also whether each trial's search stopped at ``max_sets`` sets (T,)."""
-    T, n, _ = shape.shape
-    sets = np.zeros((T, max_sets, n), dtype=np.bool_)
-    hands = np.zeros((T, max_sets))
-    count = np.zeros(T, dtype=np.int64)
-    _registration_kernel(
-        np.ascontiguousarray(shape, float),
-        np.ascontiguousarray(reported, float),
-        np.ascontiguousarray(placed, np.bool_),
-        np.ascontiguousarray(adj, np.bool_),
-        np.ascontiguousarray(triples(n, cap), np.int64),
-        np.linalg.inv(cov),
-        float(threshold),
-        int(refits),
-        int(min_size),
-        sets,
-        hands,
-        count,
-    )
-    kept = np.minimum(count, max_sets)
-    return [sets[t, : kept[t]] for t in range(T)], [hands[t, : kept[t]] for t in range(T)], count > max_sets
-
-
-def distinct_explanations(masks: np.ndarray, x: np.ndarray, Winv: np.ndarray, threshold: float) -> np.ndarray:
-    """Which of the passing sets (m, n), with their joint estimates x (m, n, 3), are explanations
-    of their own (m,): a set inside a larger one whose estimate places every drone within
-    ``threshold`` (whitened by Winv) of it is the same explanation with drones left out; a
-    set inside a larger one that places some drone further away is another (e.g. colluders
-    reflected about three pivots with every honest drone near the pivots' plane: all the
-    drones fit the reflection, and the honest ones the truth)."""
-    inside = (masks[:, None, :] <= masks[None, :, :]).all(axis=2)  # a within b
-    strict = inside & ~inside.T
-    d = x[:, None] - x[None, :]
-    apart = (np.einsum("abni,ij,abnj->abn", d, Winv, d) > threshold).any(axis=2)
-    return ~(strict & ~apart).any(axis=1)
 
 
 @register("shape", ShapeParams, "rigid registrations of the range-fixed shape to the reports")
@@ -365,61 +86,26 @@ def shape_detector(batch: SnapshotBatch, p: ShapeParams) -> VerdictBatch:
     T, n, _ = reported.shape
     noise = NoiseModel.of(batch, p, "shape")
     f_max = resolve_f_max(p, n, "shape")
-    use = shape_ranges(ranges, noise.range_sigma, p.k)
-    shape = range_shape(ranges, use, noise.range_sigma)
-    linked = use | np.swapaxes(use, 1, 2)
-    placed = linked.sum(axis=2) >= 4
-    # the shape's own error (a few range sigmas per axis) beside each drone's GNSS error
-    cov = noise.gnss_cov + (2 * noise.range_sigma) ** 2 * np.eye(3)
-    threshold = float(chi2_quantile(1 - p.p_fa / n, 3))
-    Winv = np.linalg.inv(cov)
-    adj = consistency_graph(reported, ranges, noise, p.k)
-    adj[:, np.arange(n), np.arange(n)] = True
-    found, handed, capped = registration_sets(
-        shape, reported, placed, adj, cov, threshold, p.max_triples, p.refits, p.max_sets, n - f_max
-    )
-    cands, hands = [], []
-    for t, (sets, hs) in enumerate(zip(found, handed, strict=True)):
-        if not len(sets):  # no registration: the drones the shape does not place, if any
-            sets, hs = np.zeros((1, n), dtype=bool), np.ones(1)
-        # a drone the shape does not place joins a set if its report agrees pairwise with
-        # every member's report it has a range to (the residual tests then judge it)
-        loose = ~placed[t][None, :] & (adj[t][None, :, :] | ~sets[:, None, :]).all(axis=2)
-        sets = sets | loose
-        keep = (n - sets.sum(axis=1)) <= f_max
-        order = np.argsort(-sets[keep].sum(axis=1), kind="stable")
-        cands.append(sets[keep][order])
-        hands.append(hs[keep][order])
-    owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
-    masks = np.concatenate(cands) if owner.size else np.zeros((0, n), dtype=bool)
-    passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
-    x = np.zeros((owner.size, n, 3))
-    if owner.size:
-        # each candidate's joint estimate starts from its registration: with few trusted
-        # drones (n near 2f+1) closed-form multilateration from them can start in a mirror
-        x0 = registered(shape[owner], reported[owner], masks, np.concatenate(hands), placed[owner])
-        x = joint_estimate(
-            reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma, iters=20, x0=x0
-        )
-        _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
-        passed = tests_pass(gnss_q, total, dof, masks, p.p_fa)
+    c = candidates(reported, ranges, noise, f_max, p.p_fa, p.k, p.max_triples, p.refits, p.max_sets)
+    masks, x, passed, total = c.masks, c.x, c.passed, c.total
+    counts = np.bincount(c.owner, minlength=T)
     trusted = np.ones((T, n), dtype=bool)
     suspects = np.zeros((T, n), dtype=bool)
     start = np.full((T, n, 3), np.nan)
     status = np.full(T, "ok", dtype=object)
     support = np.zeros((T, n), dtype=int)
     k = 0
-    for t, cs in enumerate(cands):
-        ks = np.arange(k, k + len(cs))
-        k += len(cs)
-        if not len(cs):  # more than f_max drones fit no registration with the others
+    for t in range(T):
+        ks = np.arange(k, k + counts[t])
+        k += counts[t]
+        if not ks.size:  # more than f_max drones fit no registration with the others
             status[t] = "alarm"
             continue
         plausible = ks[passed[ks]]
         if plausible.size:
-            plausible = plausible[distinct_explanations(masks[plausible], x[plausible], Winv, threshold)]
+            plausible = plausible[distinct_explanations(masks[plausible], x[plausible], c.Winv, c.threshold)]
         support[t] = masks[plausible].sum(axis=0)
-        if capped[t]:  # the search stopped before it saw every registration
+        if c.capped[t]:  # the search stopped before it saw every registration
             status[t] = "unidentifiable"
         if plausible.size >= 2:
             status[t] = "unidentifiable"

@@ -196,3 +196,52 @@ def test_a_reflection_that_every_drone_fits_is_not_ok():
         assert not v.faulty[0, :4].any()
         hits += v.status[0] == "unidentifiable"
     assert hits >= 9
+
+
+@pytest.mark.parametrize(("n", "f", "k"), [(7, 3, 1), (9, 4, 2)])
+def test_registration_rivals_make_joint_unidentifiable_where_colluders_register_too(n, f, k):
+    """At n = 2f+1 the colluders and their pivots are a second registration within f_max:
+    `joint` alone trusts it in a large share of the trials and accuses honest drones (at
+    (7, 3) with every drone `degenerate`: 4 anchors); with the registrations' candidates as
+    rivals it says unidentifiable and accuses no honest drone."""
+    d, b = collusion(n, f, k, 40, seed=20 + k)
+    plain = verify_batch(b, "joint")
+    assert (plain.faulty & ~d.attackers).any(axis=1).mean() >= 0.2  # what the rivals are for
+    v = verify_batch(b, "joint", registration_rivals=True)
+    unid = v.status == "unidentifiable"
+    exact = (v.faulty == d.attackers).all(axis=1)
+    assert (unid | exact).mean() >= 0.95
+    assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1  # at most 1 of 40
+
+
+def test_registration_rivals_refuse_joints_guess_about_three_pivots():
+    """Colluders reflected about 3 pivots at n = 2f+4 with f_max = f: an honest drone near the
+    pivots' plane makes the colluders' registration a second explanation; `joint` alone
+    picks one and is wrong in a sixth of the trials."""
+    d, b = collusion(12, 4, 3, 60, seed=3)
+    plain = verify_batch(b, "joint", f_max=4)
+    assert (plain.faulty & ~d.attackers).any(axis=1).sum() >= 4
+    v = verify_batch(b, "joint", f_max=4, registration_rivals=True)
+    assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1
+    exact = (v.faulty == d.attackers).all(axis=1)
+    assert (exact | (v.status == "unidentifiable")).mean() >= 0.95
+    assert exact.mean() >= 0.5  # not unidentifiable everywhere
+
+
+def test_registration_rivals_on_plain_jumps_change_verdicts_only_to_unidentifiable():
+    """Plain jumps at (13, 3): every verdict the registrations change becomes
+    `unidentifiable` (with f_max = 6 a rotation of the shape about near-collinear honest
+    drones can carry a spoofed report into place: a second explanation) and accuses no
+    honest drone; with f_max = f nothing changes."""
+    cfg = build_config("realistic", n=(13,), f=(3,), trials=60)
+    d = draw(cfg, np.random.default_rng(8), 60, 13, 3)
+    b = snapshot_batch(cfg, d)
+    plain = verify_batch(b, "joint")
+    v = verify_batch(b, "joint", registration_rivals=True)
+    changed = (v.status != plain.status) | (v.faulty != plain.faulty).any(axis=1)
+    assert (v.status[changed] == "unidentifiable").all()
+    assert changed.sum() <= 4  # 6 without the margin for candidates asking for more attackers
+    assert not (v.faulty & ~d.attackers)[changed].any()
+    told = verify_batch(b, "joint", f_max=3)
+    w = verify_batch(b, "joint", f_max=3, registration_rivals=True)
+    assert (w.status == told.status).all() and (w.faulty == told.faulty).all()

@@ -49,6 +49,7 @@ from scipy.special import ndtri
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
 from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information
+from swarmraft.estimation.registrations import registration_rivals
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch, merged_rows
@@ -100,6 +101,14 @@ class IntegrityParams(NoiseParams):
         description="a would-be ok verdict takes a rival swap (as many drones left out, as many degrees "
         "of freedom) that passes the tests and fits with a chi-square lower by more than this (the "
         "likelier set), where its own verdict is ok; None: off",
+        json_schema_extra=DETECTION,
+    )
+    registration_rivals: bool = Field(
+        False,
+        description="the rival check also tries the inlier sets of the rigid registrations of the "
+        "range-fixed shape to the reports (the shape detector's candidates): a verdict with such a "
+        "rival, leaving at most f_max drones out, passing its tests and placing some drone beyond "
+        "the verdict's levels, is unidentifiable (colluders moved rigidly about honest pivots)",
         json_schema_extra=DETECTION,
     )
 
@@ -505,10 +514,10 @@ def finish(
             known = (kept, r.of_trials(kept))
     rival = _rival_rows(prob, est, a, final, trusted, known)
     if rival is not None:
-        rows, other = rival
+        rows, common, anywhere = rival
         status[rows] = "unidentifiable"
-        faulty[rows] = ~trusted[rows] & ~other
-        trusted[rows] &= other
+        faulty[rows] = ~trusted[rows] & ~anywhere
+        trusted[rows] &= common
         est, a = _rejudged(prob, est, a, rows, trusted)
         final = worst_status(a.status, status)
     return _verdicts(a, trusted, faulty, status, final, diagnostics)
@@ -695,10 +704,12 @@ def _rival_rows(
     status: np.ndarray,
     trusted: np.ndarray,
     known: tuple[np.ndarray, Rivals] | None = None,
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict, or ``degenerate`` verdict with some drone ``ok``,
     has a rival trusted set placing some drone beyond its protection level (an ``ok`` drone:
-    the others' levels are inf), and that rival (len(rows), n); None if there are none. A
+    the others' levels are inf), and that rival (len(rows), n) twice (what the rivals all
+    trust, and what any of them trusts: `_with_registrations` counts several); None if there
+    are none. A
     `degenerate` verdict's ``ok`` drones are protected as an ``ok`` verdict's are: at (9, 4)
     (realistic, trial 9,331) `joint` trusted a spoofer, left out an honest drone and placed 3
     drones `ok` 42-118 m off (levels 15-35 m) on the mirror side of a near-plane, one drone
@@ -708,9 +719,16 @@ def _rival_rows(
     small = trusted.sum(axis=1) <= prob.p.full_rivals_below
     some_ok = (status == "ok") | ((status == "degenerate") & (a.drone_status == "ok").any(axis=1))
     rows = np.flatnonzero(some_ok & ((~trusted).any(axis=1) | small))
-    if not rows.size:
+    # with registration rivals: every verdict with an `ok` drone, something flagged or not
+    # (the colluders' registration can be the set the detector trusted, or one it never
+    # tried), and every `degenerate` or `unidentifiable` one that accuses
+    accuses = np.isin(status, ("degenerate", "unidentifiable")) & (~trusted).any(axis=1)
+    every = np.flatnonzero(some_ok | accuses) if prob.p.registration_rivals else np.zeros(0, int)
+    if not rows.size and not every.size:
         return None
-    if known is None:
+    if not rows.size:
+        r = Rivals.none(trusted.shape[1])
+    elif known is None:
         r = prob.swaps(est, a, trusted, rows, full=True)
     else:
         searched, r = known
@@ -722,9 +740,62 @@ def _rival_rows(
     with np.errstate(invalid="ignore"):
         beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])
     real = r.passed & beyond.any(axis=1)
+    if every.size:
+        return _with_registrations(prob, a, trusted, some_ok, r, real, every)
     if not real.any():
         return None
     # per trial, the first rival found (a trial's own rivals come in the same order whatever
     # other trials are searched with it)
     owners, first = np.unique(r.owner[real], return_index=True)
-    return owners, r.trusted[np.flatnonzero(real)[first]]
+    other = r.trusted[np.flatnonzero(real)[first]]
+    return owners, other, other
+
+
+def _with_registrations(
+    prob: _Problem,
+    a: Assessment,
+    trusted: np.ndarray,
+    some_ok: np.ndarray,
+    r: Rivals,
+    real: np.ndarray,
+    every: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """`_rival_rows` with the registrations' candidates of the trials ``every`` as rivals
+    too (`registrations.registration_rivals`; the swaps ``r``, of which ``real`` count). A
+    candidate counts where it passes its tests and places some `ok` drone beyond its levels,
+    or, for a verdict without an `ok` drone (``degenerate`` or ``unidentifiable``, accusing),
+    where it trusts a drone the verdict accuses: at (7, 3) under colluders rotated about one honest pivot
+    `joint` trusted the 3 colluders and the pivot (4 anchors: every drone `degenerate`) and
+    accused 3 honest drones, whose registration with the pivot passed as well. Every rival
+    that counts counts (not only the first): the trials, what all their sets and the
+    verdict's trust (len(rows), n), and the drones any of them trusts."""
+    f_max = resolve_f_max(prob.p, trusted.shape[1], "integrity")
+    g = registration_rivals(prob.reported, prob.ranges, prob.noise, f_max, prob.p.p_fa, every)
+    g = g.of_rows(np.flatnonzero((g.trusted != trusted[g.owner]).any(axis=1)))  # other sets only
+    d = g.x - a.positions[g.owner]
+    with np.errstate(invalid="ignore"):
+        beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[g.owner]) | (np.abs(d[..., 2]) > a.vpl[g.owner])
+    trusts_accused = (g.trusted & ~trusted[g.owner]).any(axis=1)
+    counts = g.passed & (beyond.any(axis=1) | (~some_ok[g.owner] & trusts_accused))
+    # a candidate asking for m attackers more than the verdict must fit the data it uses
+    # better than the verdict's estimate does by m rival_drop_margin (as a rival drop must):
+    # at (13, 3) under plain jumps, 7 honest drones near a plane fit the mirror image of the
+    # other 6 as well (their reports unused), a set leaving 6 out within f_max = 6
+    more = (~g.trusted).sum(axis=1) - (~trusted[g.owner]).sum(axis=1)
+    if (counts & (more > 0)).any():
+        _, _, chosen, _ = residual_statistics(
+            a.positions[g.owner], prob.reported[g.owner], prob.ranges[g.owner], g.trusted, prob.noise
+        )
+        with np.errstate(invalid="ignore"):
+            counts &= (more <= 0) | (g.cost < chosen - more * prob.p.rival_drop_margin)
+    owner = np.concatenate([r.owner[real], g.owner[counts]])
+    sets = np.concatenate([r.trusted[real], g.trusted[counts]])
+    if not owner.size:
+        return None
+    owners = np.unique(owner)
+    common = np.ones((owners.size, trusted.shape[1]), dtype=bool)
+    anywhere = np.zeros_like(common)
+    at = np.searchsorted(owners, owner)
+    np.logical_and.at(common, at, sets)
+    np.logical_or.at(anywhere, at, sets)
+    return owners, common, anywhere

@@ -26,6 +26,7 @@ from swarmraft.estimation.joint import chi2_quantile, joint_estimate, residual_s
 from swarmraft.estimation.links import TAMPER_SHARE, range_shape
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.pairwise import consistency_graph
+from swarmraft.estimation.rivals import Rivals
 
 # the defaults of `shape.ShapeParams`, which the rival check uses as they are
 MAX_TRIPLES = 6000  # registration seeds: every triple up to this many, else a fixed choice
@@ -392,3 +393,13 @@ def candidates(
         _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
         passed = tests_pass(gnss_q, total, dof, masks, p_fa)
     return Candidates(owner, masks, all_hands, x, total, passed, capped, Winv, threshold)
+
+
+def registration_rivals(
+    reported: np.ndarray, ranges: np.ndarray, noise: NoiseModel, f_max: int, p_fa: float, rows: np.ndarray
+) -> Rivals:
+    """The candidate sets of the trials ``rows`` (`candidates`) as rivals of their verdicts
+    (`integrity.finish`'s rival check, `IntegrityParams.registration_rivals`): each with its
+    trial, set, whether it passes the residual tests, estimate and chi-square."""
+    c = candidates(reported[rows], ranges[rows], noise, f_max, p_fa)
+    return Rivals(rows[c.owner], c.masks, c.passed, c.x, c.total)

@@ -75,6 +75,16 @@ class Rivals:
         keep = np.isin(self.owner, rows)
         return Rivals(self.owner[keep], self.trusted[keep], self.passed[keep], self.x[keep], self.cost[keep])
 
+    @classmethod
+    def none(cls, n: int) -> Rivals:
+        """No rivals, of trials of n drones."""
+        empty = np.zeros(0)
+        return cls(np.zeros(0, int), np.zeros((0, n), bool), np.zeros(0, bool), np.zeros((0, n, 3)), empty)
+
+    def of_rows(self, rows: np.ndarray) -> Rivals:
+        """The rivals ``rows`` (indices into these), in that order."""
+        return Rivals(*(getattr(self, k)[rows] for k in Rivals.__dataclass_fields__))
+
     def and_(self, other: Rivals) -> Rivals:
         """These rivals, then ``other``'s (of other trials)."""
         return Rivals(

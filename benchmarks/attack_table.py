@@ -12,6 +12,7 @@ README's drag-off section.
 
 Run: .venv/bin/python benchmarks/attack_table.py [--n 13] [--f 3] [--trials 1000]
      [--detectors paper,clique,fde,joint] [--attacks jump,collusion-2,...] [--out FOLDER]
+     [--param KEY=VALUE ...]   (given to every detector: --detectors joint --param registration_rivals=true)
 The compare folders are kept under --out (default: a temporary folder).
 """
 
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.estimation import Snapshot, verify
 from swarmraft.experiments import build_config
 from swarmraft.experiments.calibration import detector_settings
@@ -72,12 +74,22 @@ def main() -> None:
     ap.add_argument("--attacks", default=",".join(ATTACKS))
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a parameter of every detector (repeatable), e.g. registration_rivals=true",
+    )
     a = ap.parse_args()
     detectors = [d for d in a.detectors.split(",") if d]
     attacks = [x for x in a.attacks.split(",") if x]
     bad = [x for x in attacks if x not in ATTACKS]
     if bad:
         sys.exit(f"attack_table: --attacks: unknown {', '.join(bad)}; known: {', '.join(ATTACKS)}")
+    extra = {}
+    for det in detectors:
+        extra = param_values(ap, a.param, det)
     rows = [(x, x, {}) for x in attacks] + [("jump + NLOS 20 % links", "jump", NLOS)]
     out = a.out or Path(tempfile.mkdtemp(prefix="swarmraft-attack-table-"))
     print(f"n = {a.n}, f = {a.f}, realistic preset, {a.trials} trials a row; folders under {out}")
@@ -89,7 +101,14 @@ def main() -> None:
     for label, attack, ranging in rows:
         try:
             cfg = build_config(
-                "realistic", n=(a.n,), f=(a.f,), trials=a.trials, attack={"name": attack}, ranging=ranging
+                "realistic",
+                n=(a.n,),
+                f=(a.f,),
+                trials=a.trials,
+                attack={"name": attack},
+                ranging=ranging,
+                detector=detectors[0],
+                detector_params=extra,
             )
         except ConfigError as exc:
             sys.exit(f"attack_table: {exc}")

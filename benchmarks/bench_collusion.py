@@ -11,7 +11,9 @@ Cells (n = 2f+4 for f = 3, 4, 5 about 1 and 2 pivots, with f_max = (n-1)//2 and 
 ``fp`` (honest drones flagged), ``unid`` (status unidentifiable), ``unid|exact`` and
 ``ms`` (mean verification time per trial in a batch of ``--chunk``). ``--step`` instead
 times single-snapshot verification (a leader step) at one cell: best and median of
-``--repeat`` snapshots, each detector on the same snapshots.
+``--repeat`` snapshots, each detector on the same snapshots. ``--param KEY=VALUE``
+(repeatable) is given to every detector run, e.g. ``--detectors joint --param
+registration_rivals=true``.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import time
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.estimation import verify_batch
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
@@ -38,7 +41,7 @@ def cells() -> list[tuple[str, int, int, str]]:
     return out
 
 
-def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk):
+def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk, extra=None):
     cfg = build_config(
         "realistic",
         n=(n,),
@@ -48,7 +51,7 @@ def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk):
         chunk_size=chunk,
         attack={"name": attack, "min_move": min_move},
     )
-    params = {"f_max": f} if rule == "f" else {}
+    params = {**(extra or {}), **({"f_max": f} if rule == "f" else {})}
     stats = {d: {"exact": [], "wrong": [], "fp": [], "unid": [], "t": 0.0} for d in detectors}
     for c, lo in enumerate(range(0, trials, chunk)):
         T = min(chunk, trials - lo)
@@ -115,8 +118,18 @@ def main() -> None:
     ap.add_argument("--f", default="", help="comma-separated attacker counts to keep (of 3, 4, 5)")
     ap.add_argument("--step", default="", help="N,F: time single-snapshot steps at this cell instead")
     ap.add_argument("--repeat", type=int, default=200, help="--step: snapshots timed")
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a parameter of every detector run (repeatable), e.g. registration_rivals=true",
+    )
     a = ap.parse_args()
     dets = a.detectors.split(",")
+    extra = {}
+    for det in dets:
+        extra = param_values(ap, a.param, det)
     if a.step:
         n, f = (int(v) for v in a.step.split(","))
         step_times(dets, n, f, a.repeat, a.seed)
@@ -126,7 +139,7 @@ def main() -> None:
     for attack, n, f, rule in cells():
         if (keep and attack not in keep) or (a.f and str(f) not in a.f.split(",")):
             continue
-        for row in run_cell(attack, n, f, rule, dets, a.trials, a.seed, a.min_move, a.chunk):
+        for row in run_cell(attack, n, f, rule, dets, a.trials, a.seed, a.min_move, a.chunk, extra):
             at, n_, f_, r, det, ex, wr, fp, un, ue, ms = row
             fm = n_ - 1 >> 1 if r == "default" else f_
             print(

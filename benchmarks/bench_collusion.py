@@ -87,24 +87,37 @@ def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk, extra
     return rows
 
 
-def step_times(detectors, n, f, repeat, seed):
+def step_times(detectors, n, f, repeat, seed, extra=None):
     """Best and median single-snapshot time (ms) per detector, on the same ``repeat``
-    snapshots of a realistic jump cell (n, f)."""
+    snapshots of a realistic jump cell (n, f); with ``extra`` parameters, each detector
+    also with them, interleaved, and the ratio of the two medians."""
     cfg = build_config("realistic", n=(n,), f=(f,), trials=repeat, seed=seed)
     d = draw(cfg, np.random.default_rng(chunk_seed(seed, n, f, 0)), repeat, n, f)
     b = snapshot_batch(cfg, d)
     snaps = [b.subset(np.array([t])) for t in range(repeat)]
-    for det in detectors:  # warm-up: compiled kernels, imports
-        verify_batch(snaps[0], det)
-    times = {det: [] for det in detectors}
+    runs = [(det, {}) for det in detectors]
+    if extra:
+        runs += [(det, extra) for det in detectors]
+    label = {
+        i: det + ("" if not p else " " + ",".join(f"{k}={v}" for k, v in p.items()))
+        for i, (det, p) in enumerate(runs)
+    }
+    for det, p in runs:  # warm-up: compiled kernels, imports
+        verify_batch(snaps[0], det, **p)
+    times = {i: [] for i in label}
     for snap in snaps:
-        for det in detectors:  # interleaved, so load drifts hit every detector alike
+        for i, (det, p) in enumerate(runs):  # interleaved, so load drifts hit every run alike
             t0 = time.perf_counter()
-            verify_batch(snap, det)
-            times[det].append(1e3 * (time.perf_counter() - t0))
-    for det in detectors:
-        t = np.array(times[det])
-        print(f"{det:8s} n={n} f={f}: best {t.min():.2f} ms, median {np.median(t):.2f} ms ({repeat} steps)")
+            verify_batch(snap, det, **p)
+            times[i].append(1e3 * (time.perf_counter() - t0))
+    for i in label:
+        t = np.array(times[i])
+        print(
+            f"{label[i]:8s} n={n} f={f}: best {t.min():.2f} ms, median {np.median(t):.2f} ms ({repeat} steps)"
+        )
+    for i, det in enumerate(detectors if extra else []):
+        ratio = np.median(times[len(detectors) + i]) / np.median(times[i])
+        print(f"{det}: median with {label[len(detectors) + i].split(' ', 1)[1]} / without: {ratio:.2f}")
 
 
 def main() -> None:
@@ -132,7 +145,7 @@ def main() -> None:
         extra = param_values(ap, a.param, det)
     if a.step:
         n, f = (int(v) for v in a.step.split(","))
-        step_times(dets, n, f, a.repeat, a.seed)
+        step_times(dets, n, f, a.repeat, a.seed, extra)
         return
     keep = set(a.only.split(",")) if a.only else None
     print("attack       n  f  f_max    detector exact  wrong  fp     unid   unid|exact  ms/trial")

@@ -774,10 +774,11 @@ def _with_registrations(
     too (`registrations.registration_rivals`; the swaps ``r``, of which ``real`` count). A
     candidate counts where it passes its tests and places some `ok` drone beyond its levels,
     or, for a verdict without an `ok` drone (``degenerate`` or ``unidentifiable``, accusing),
-    where it trusts a drone the verdict accuses: at (7, 3) under colluders rotated about one honest pivot
-    `joint` trusted the 3 colluders and the pivot (4 anchors: every drone `degenerate`) and
-    accused 3 honest drones, whose registration with the pivot passed as well. Every rival
-    that counts counts (not only the first): the trials, what all their sets and the
+    where it trusts a drone the verdict accuses (at (7, 3) under colluders rotated about one
+    honest pivot `joint` trusted the 3 colluders and the pivot, 4 anchors: every drone
+    `degenerate`, and accused 3 honest drones, whose registration with the pivot passed as
+    well), and where the verdict's estimate does not fit the candidate's data (below). Every
+    rival that counts counts (not only the first): the trials, what all their sets and the
     verdict's trust (len(rows), n), and the drones any of them trusts."""
     f_max = resolve_f_max(prob.p, trusted.shape[1], "integrity")
     g = registration_rivals(prob.reported, prob.ranges, prob.noise, f_max, prob.p.p_fa, every)

@@ -13,6 +13,10 @@ against its targets:
   detector: seconds): drones found dragged, steps the swarm is pulled, the largest statistics.
 
     PYTHONPATH=src python benchmarks/drag_acceptance.py crash --seeds 1-10 --jobs 2
+
+``--param KEY=VALUE`` (repeatable) sets a parameter of the scenarios' detector, checked
+against ``joint``'s (every shipped scenario's detector but the paper-recovery ones'), e.g.
+``--param registration_rivals=true``.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.experiments.mission import error_series, load_scenario, summarize
 from swarmraft.protocol.drift import drift_test
 from swarmraft.sim.mission import run_mission
@@ -34,9 +39,18 @@ def _seeds(text: str) -> list[int]:
     return list(range(int(a), int(b or a) + 1))
 
 
-def attacked(name: str, seed: int) -> str:
+def scenario(name: str, seed: int, params: dict | None = None, **overrides):  # noqa: ANN201
+    """A shipped scenario with ``seed``, its detector's parameters updated by ``params``."""
+    sc = load_scenario(name, seed=seed, **overrides)
+    if not params:
+        return sc
+    protocol = sc.protocol.model_copy(update={"detector_params": {**sc.protocol.detector_params, **params}})
+    return sc.model_copy(update={"protocol": protocol})
+
+
+def attacked(name: str, seed: int, params: dict | None = None) -> str:
     """One attacked mission's line against the targets."""
-    log = run_mission(load_scenario(name, seed=seed))
+    log = run_mission(scenario(name, seed, params))
     s = summarize(log, error_series(log))
     hx = s["honest_worse_than_gnss"]
     ok = hx["longest_s"] <= 1.0
@@ -62,16 +76,16 @@ def attacked(name: str, seed: int) -> str:
     return f"{name} seed {seed}: {'met' if ok else 'NOT MET'}; " + "; ".join(parts)
 
 
-def honest(name: str, seed: int) -> str:
+def honest(name: str, seed: int, params: dict | None = None) -> str:
     """One shipped scenario without its spoofs: honest drones flagged, alarm records."""
-    sc = load_scenario(name, seed=seed, spoof=[])
+    sc = scenario(name, seed, params, spoof=[])
     log = run_mission(sc)
     flagged = int((log.faulty & log.committed[:, None]).sum())
     alarms = int((log.status == "alarm").sum())
     return f"{name} seed {seed} (no spoof): honest drone-steps flagged {flagged}, alarm records {alarms}"
 
 
-def honest_world(name: str, seed: int) -> str:
+def honest_world(name: str, seed: int, params: dict | None = None) -> str:
     """The drag-off test on every step of a shipped scenario's honest world (no spoof)."""
     sc = load_scenario(name, seed=seed, spoof=[])
     w = ScenarioWorld.build(sc)
@@ -102,24 +116,34 @@ def main() -> None:
     )
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--scenarios", default=None, help="honest parts: these shipped scenarios (a,b,...)")
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a parameter of the scenarios' detector (repeatable; checked against joint's, the "
+        "detector of every scenario these parts run but the paper-recovery ones), "
+        "e.g. registration_rivals=true",
+    )
     args = ap.parse_args()
+    params = param_values(ap, args.param, "joint")
     seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10"}.get(args.part, "1-3"))
     if args.part in ("honest", "honest-world"):
         fn = honest if args.part == "honest" else honest_world
         names = args.scenarios.split(",") if args.scenarios else shipped_scenarios()
-        jobs = [(fn, name, s) for name in names for s in seeds]
+        jobs = [(fn, name, s, params) for name in names for s in seeds]
     else:
         name = "coordinated-drag" if args.part == "drag" else "leader-crash-under-attack"
-        jobs = [(attacked, name, s) for s in seeds]
+        jobs = [(attacked, name, s, params) for s in seeds]
     with ProcessPoolExecutor(args.jobs) as pool:
         for line in pool.map(_run, jobs):
             print(line, flush=True)
 
 
 def _run(job: tuple) -> str:
-    fn, name, seed = job
+    fn, name, seed, params = job
     np.seterr(all="ignore")
-    return fn(name, seed)
+    return fn(name, seed, params)
 
 
 if __name__ == "__main__":

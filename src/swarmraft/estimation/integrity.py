@@ -746,10 +746,7 @@ def _rival_rows(
         fresh = np.setdiff1d(rows, searched)
         if fresh.size:
             r = r.and_(prob.swaps(est, a, trusted, fresh, full=True))
-    d = r.x - a.positions[r.owner]
-    with np.errstate(invalid="ignore"):
-        beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[r.owner]) | (np.abs(d[..., 2]) > a.vpl[r.owner])
-    real = r.passed & beyond.any(axis=1)
+    real = r.passed & _beyond_levels(r.x, a, r.owner).any(axis=1)
     if every.size:
         return _with_registrations(prob, a, trusted, some_ok, r, real, every)
     if not real.any():
@@ -759,6 +756,14 @@ def _rival_rows(
     owners, first = np.unique(r.owner[real], return_index=True)
     other = r.trusted[np.flatnonzero(real)[first]]
     return owners, other, other
+
+
+def _beyond_levels(x: np.ndarray, a: Assessment, owner: np.ndarray) -> np.ndarray:
+    """Which drones of each rival's estimate x (B, n, 3) lie beyond the protection levels of
+    the verdict of its trial ``owner`` (B,) (B, n; never where either position is nan)."""
+    d = x - a.positions[owner]
+    with np.errstate(invalid="ignore"):
+        return (np.hypot(d[..., 0], d[..., 1]) > a.hpl[owner]) | (np.abs(d[..., 2]) > a.vpl[owner])
 
 
 def _with_registrations(
@@ -783,9 +788,7 @@ def _with_registrations(
     f_max = resolve_f_max(prob.p, trusted.shape[1], "integrity")
     g = registration_rivals(prob.reported, prob.ranges, prob.noise, f_max, prob.p.p_fa, every)
     g = g.of_rows(np.flatnonzero((g.trusted != trusted[g.owner]).any(axis=1)))  # other sets only
-    d = g.x - a.positions[g.owner]
-    with np.errstate(invalid="ignore"):
-        beyond = (np.hypot(d[..., 0], d[..., 1]) > a.hpl[g.owner]) | (np.abs(d[..., 2]) > a.vpl[g.owner])
+    beyond = _beyond_levels(g.x, a, g.owner)
     trusts_accused = (g.trusted & ~trusted[g.owner]).any(axis=1)
     counts = g.passed & (beyond.any(axis=1) | (~some_ok[g.owner] & trusts_accused))
     # a candidate counts only where the verdict's estimate does not fit the data it uses: a

@@ -49,7 +49,7 @@ from scipy.special import ndtri
 from swarmraft.estimation.joint import chi2_quantile, residual_statistics, tests_pass, weighted_gauss_newton
 from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information
-from swarmraft.estimation.registrations import candidates, distinct_explanations, registration_rivals
+from swarmraft.estimation.registrations import Candidates, candidates, distinct_explanations
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch, merged_rows
@@ -509,20 +509,21 @@ def finish(
             faulty[rows[take]] = ~sets[take]
             est, a = _merged(est, a, rows[take], e, b, take)
             final = worst_status(a.status, status)
-            searched, r = known
-            kept = np.setdiff1d(searched, rows[take])
-            known = (kept, r.of_trials(kept))
-    # an alarm that a registration explains after all; then the rival check, as any verdict
-    explained = _explained_alarms(prob, final) if p.registration_rivals else None
-    if explained is not None:
-        rows, sets, flags, decided = explained
-        trusted[rows], faulty[rows], status[rows] = sets, flags, decided
-        est, a = _rejudged(prob, est, a, rows, trusted)
-        final = worst_status(a.status, status)
-        if known is not None:  # their swaps were searched for the sets they had
-            kept = np.setdiff1d(known[0], rows)
-            known = (kept, known[1].of_trials(kept))
-    rival = _rival_rows(prob, est, a, final, trusted, known)
+            known = _forget(known, rows[take])
+    # the registrations' candidates (a trial's own, whatever its verdict: computed once);
+    # an alarm that one of them explains after all; then the rival check, as any verdict
+    reg = None
+    if p.registration_rivals:
+        f_max = resolve_f_max(p, trusted.shape[1], "integrity")
+        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa)
+        explained = _explained_alarms(reg, final)
+        if explained is not None:
+            rows, sets, flags, decided = explained
+            trusted[rows], faulty[rows], status[rows] = sets, flags, decided
+            est, a = _rejudged(prob, est, a, rows, trusted)
+            final = worst_status(a.status, status)
+            known = _forget(known, rows)  # their swaps were searched for the sets they had
+    rival = _rival_rows(prob, est, a, final, trusted, known, reg)
     if rival is not None:
         rows, common, anywhere = rival
         status[rows] = "unidentifiable"
@@ -714,6 +715,7 @@ def _rival_rows(
     status: np.ndarray,
     trusted: np.ndarray,
     known: tuple[np.ndarray, Rivals] | None = None,
+    reg: Candidates | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Trials (indices) whose ``ok`` verdict, or ``degenerate`` verdict with some drone ``ok``,
     has a rival trusted set placing some drone beyond its protection level (an ``ok`` drone:
@@ -724,7 +726,8 @@ def _rival_rows(
     (realistic, trial 9,331) `joint` trusted a spoofer, left out an honest drone and placed 3
     drones `ok` 42-118 m off (levels 15-35 m) on the mirror side of a near-plane, one drone
     `degenerate`; the true set, one swap away, was a rival never tried. ``known``: trials
-    already searched (with these sets, estimate and assessment) and their swaps."""
+    already searched (with these sets, estimate and assessment) and their swaps; ``reg``: the
+    registrations' candidates of every trial, rivals too where given (`_with_registrations`)."""
     # a verdict with nothing flagged has rivals only by leaving a trusted drone out (full search)
     small = trusted.sum(axis=1) <= prob.p.full_rivals_below
     some_ok = (status == "ok") | ((status == "degenerate") & (a.drone_status == "ok").any(axis=1))
@@ -733,7 +736,7 @@ def _rival_rows(
     # (the colluders' registration can be the set the detector trusted, or one it never
     # tried), and every `degenerate` or `unidentifiable` one that accuses
     accuses = np.isin(status, ("degenerate", "unidentifiable")) & (~trusted).any(axis=1)
-    every = np.flatnonzero(some_ok | accuses) if prob.p.registration_rivals else np.zeros(0, int)
+    every = np.flatnonzero(some_ok | accuses) if reg is not None else np.zeros(0, int)
     if not rows.size and not every.size:
         return None
     if not rows.size:
@@ -748,7 +751,7 @@ def _rival_rows(
             r = r.and_(prob.swaps(est, a, trusted, fresh, full=True))
     real = r.passed & _beyond_levels(r.x, a, r.owner).any(axis=1)
     if every.size:
-        return _with_registrations(prob, a, trusted, some_ok, r, real, every)
+        return _with_registrations(prob, a, trusted, some_ok, r, real, reg.rivals(every))
     if not real.any():
         return None
     # per trial, the first rival found (a trial's own rivals come in the same order whatever
@@ -773,10 +776,10 @@ def _with_registrations(
     some_ok: np.ndarray,
     r: Rivals,
     real: np.ndarray,
-    every: np.ndarray,
+    g: Rivals,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """`_rival_rows` with the registrations' candidates of the trials ``every`` as rivals
-    too (`registrations.registration_rivals`; the swaps ``r``, of which ``real`` count). A
+    """`_rival_rows` with the registrations' candidates ``g`` as rivals too
+    (`registrations.Candidates.rivals`; the swaps ``r``, of which ``real`` count). A
     candidate counts where it passes its tests and places some `ok` drone beyond its levels,
     or, for a verdict without an `ok` drone (``degenerate`` or ``unidentifiable``, accusing),
     where it trusts a drone the verdict accuses (at (7, 3) under colluders rotated about one
@@ -785,8 +788,6 @@ def _with_registrations(
     well), and where the verdict's estimate does not fit the candidate's data (below). Every
     rival that counts counts (not only the first): the trials, what all their sets and the
     verdict's trust (len(rows), n), and the drones any of them trusts."""
-    f_max = resolve_f_max(prob.p, trusted.shape[1], "integrity")
-    g = registration_rivals(prob.reported, prob.ranges, prob.noise, f_max, prob.p.p_fa, every)
     g = g.of_rows(np.flatnonzero((g.trusted != trusted[g.owner]).any(axis=1)))  # other sets only
     beyond = _beyond_levels(g.x, a, g.owner)
     trusts_accused = (g.trusted & ~trusted[g.owner]).any(axis=1)
@@ -816,25 +817,22 @@ def _with_registrations(
 
 
 def _explained_alarms(
-    prob: _Problem, final: np.ndarray
+    c: Candidates, final: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """With registration rivals: the ``alarm`` verdicts (indices) that some registration's
-    candidate set explains after all (it passes its tests), and what each becomes: one
-    explanation (`registrations.distinct_explanations`: a passing set inside a larger one
-    placing every drone alike is the same one) is trusted, its status ``ok`` (the
-    assessment may say worse); several are ``unidentifiable``, trusting what all of them
-    trust and flagging only what none does. Returns the trials, their trusted sets and flags
-    (len(rows), n) and statuses; None where there are none. At (7, 3) under colluders rotated
-    about one honest pivot `joint` alone raised `alarm`s accusing honest drones while both
-    the honest registration and the colluders' passed."""
+    """With registration rivals (every trial's candidates ``c``): the ``alarm`` verdicts
+    (indices) that some registration's candidate set explains after all (it passes its
+    tests), and what each becomes: one explanation (`registrations.distinct_explanations`:
+    a passing set inside a larger one placing every drone alike is the same one) is
+    trusted, its status ``ok`` (the assessment may say worse); several are
+    ``unidentifiable``, trusting what all of them trust and flagging only what none does.
+    Returns the trials, their trusted sets and flags (len(rows), n) and statuses; None
+    where there are none. At (7, 3) under colluders rotated about one honest pivot `joint`
+    alone raised `alarm`s accusing honest drones while both the honest registration and
+    the colluders' passed."""
     rows = np.flatnonzero(final == "alarm")
-    if not rows.size:
-        return None
-    f_max = resolve_f_max(prob.p, prob.reported.shape[1], "integrity")
-    c = candidates(prob.reported[rows], prob.ranges[rows], prob.noise, f_max, prob.p.p_fa)
     out: list[tuple[int, np.ndarray, np.ndarray, str]] = []
-    for i, t in enumerate(rows):
-        ks = np.flatnonzero((c.owner == i) & c.passed)
+    for t in rows:
+        ks = np.flatnonzero((c.owner == t) & c.passed)
         if not ks.size:
             continue
         ks = ks[distinct_explanations(c.masks[ks], c.x[ks], c.Winv, c.threshold)]
@@ -849,3 +847,12 @@ def _explained_alarms(
         np.array([o[2] for o in out]),
         np.array([o[3] for o in out], dtype=object),
     )
+
+
+def _forget(known: tuple[np.ndarray, Rivals] | None, rows: np.ndarray) -> tuple[np.ndarray, Rivals] | None:
+    """The swaps already searched, ``known``, without those of the trials ``rows`` (their
+    trusted sets changed since)."""
+    if known is None:
+        return None
+    kept = np.setdiff1d(known[0], rows)
+    return kept, known[1].of_trials(kept)

@@ -335,6 +335,12 @@ class Candidates:
     Winv: np.ndarray
     threshold: float
 
+    def rivals(self, rows: np.ndarray) -> Rivals:
+        """The candidate sets of the trials ``rows`` as rivals of their verdicts
+        (`integrity.finish`'s rival check, `IntegrityParams.registration_rivals`): each with
+        its trial, set, whether it passes the residual tests, estimate and chi-square."""
+        return Rivals(self.owner, self.masks, self.passed, self.x, self.total).of_trials(rows)
+
 
 def candidates(
     reported: np.ndarray,
@@ -393,13 +399,3 @@ def candidates(
         _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
         passed = tests_pass(gnss_q, total, dof, masks, p_fa)
     return Candidates(owner, masks, all_hands, x, total, passed, capped, Winv, threshold)
-
-
-def registration_rivals(
-    reported: np.ndarray, ranges: np.ndarray, noise: NoiseModel, f_max: int, p_fa: float, rows: np.ndarray
-) -> Rivals:
-    """The candidate sets of the trials ``rows`` (`candidates`) as rivals of their verdicts
-    (`integrity.finish`'s rival check, `IntegrityParams.registration_rivals`): each with its
-    trial, set, whether it passes the residual tests, estimate and chi-square."""
-    c = candidates(reported[rows], ranges[rows], noise, f_max, p_fa)
-    return Rivals(rows[c.owner], c.masks, c.passed, c.x, c.total)

@@ -72,8 +72,7 @@ class Rivals:
 
     def of_trials(self, rows: np.ndarray) -> Rivals:
         """The rivals of the trials ``rows`` (indices), in their order here."""
-        keep = np.isin(self.owner, rows)
-        return Rivals(self.owner[keep], self.trusted[keep], self.passed[keep], self.x[keep], self.cost[keep])
+        return self.of_rows(np.flatnonzero(np.isin(self.owner, rows)))
 
     @classmethod
     def none(cls, n: int) -> Rivals:

@@ -6,17 +6,18 @@ port in use, a missing .rrd, a folder that is not a mission's) is one line with 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from proc_lines import exit_code, line_queue, wait_line
 from rrd import assert_swarm_recorded, recording_rows
 from swarmraft.cli import main
 from swarmraft.experiments.mission import load_scenario, run_and_write
@@ -124,14 +125,14 @@ def test_ctrl_c_stops_the_viewer_even_where_the_parent_ignored_it(recorded):
     cmd = [sys.executable, "-m", "swarmraft", "view", str(recorded / "live.rrd"), "--port", str(port)]
     ignore = lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)  # noqa: E731
     out = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True}
-    proc = subprocess.Popen(cmd, preexec_fn=ignore, **out)
+    env = {**os.environ, "PYTHONFAULTHANDLER": "1"}  # a hang shows its stacks (exit_code)
+    proc = subprocess.Popen(cmd, preexec_fn=ignore, env=env, **out)
+    seen: list[str] = []
     try:
-        end = time.monotonic() + 120
-        for line in proc.stdout:  # type: ignore[union-attr]
-            if "Ctrl-C to stop" in line or time.monotonic() > end:
-                break
+        q = line_queue(proc)
+        wait_line(q, "Ctrl-C to stop", 120, seen)
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(30) == 0
+        assert exit_code(proc, q, 60, seen) == 0, "".join(seen)
     finally:
         if proc.poll() is None:
             proc.kill()

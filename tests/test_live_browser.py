@@ -10,20 +10,19 @@ The README's screenshot comes from this test:
 from __future__ import annotations
 
 import os
-import queue
 import re
 import shutil
 import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from browser import chromium_page
+from proc_lines import line_queue, wait_line
 from rrd import assert_swarm_recorded
 from swarmraft.viz.live import LEADER_COLOUR, STATUS_COLOURS
 
@@ -66,30 +65,6 @@ def _swarm_view(img: np.ndarray) -> np.ndarray:
     return img[int(0.07 * h) : int(0.75 * h), : int(0.58 * w)]
 
 
-def _lines(proc: subprocess.Popen) -> queue.Queue:
-    q: queue.Queue = queue.Queue()
-
-    def pump() -> None:
-        for line in proc.stdout:  # type: ignore[union-attr]
-            q.put(line)
-
-    threading.Thread(target=pump, daemon=True).start()
-    return q
-
-
-def _wait_line(q: queue.Queue, pattern: str, timeout_s: float, seen: list[str]) -> re.Match:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        try:
-            line = q.get(timeout=0.5)
-        except queue.Empty:
-            continue
-        seen.append(line)
-        if m := re.search(pattern, line):
-            return m
-    raise AssertionError(f"no line matching {pattern!r} within {timeout_s:g} s; output:\n{''.join(seen)}")
-
-
 def test_live_view_in_a_browser_shows_the_swarm_and_its_recording_holds_it(tmp_path):
     from PIL import Image
 
@@ -101,11 +76,11 @@ def test_live_view_in_a_browser_shows_the_swarm_and_its_recording_holds_it(tmp_p
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     seen: list[str] = []
     try:
-        q = _lines(proc)
-        url = _wait_line(q, r"live view: (http://127\.0\.0\.1:\d+/\S+)", 120, seen).group(1)
+        q = line_queue(proc)
+        url = wait_line(q, r"live view: (http://127\.0\.0\.1:\d+/\S+)", 120, seen).group(1)
         with chromium_page(1280, 800) as page:
             page.goto(url)
-            _wait_line(q, rf"wrote {re.escape(str(rrd))}", 180, seen)  # the mission is over
+            wait_line(q, rf"wrote {re.escape(str(rrd))}", 180, seen)  # the mission is over
             # the page has the whole stream once it draws the flagged drones and the leader
             end = time.monotonic() + 120
             while True:

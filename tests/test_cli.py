@@ -93,6 +93,14 @@ def test_check_compares_with_published(results):
         (["sweep", "--param", "tau=-1", "--n", "5"], "paper.tau"),
         (["sweep", "--param", "nonsense", "--n", "5"], "KEY=VALUE"),
         (["sweep", "--param", "colour=1", "--n", "5"], "paper.colour: unknown parameter"),
+        (  # sweep's default detector is paper: the line names the detectors that have it
+            ["sweep", "--param", "p_fa=0.01", "--n", "5"],
+            "paper.p_fa: unknown parameter (p_fa is a parameter of clique, fde, joint, shape: choose",
+        ),
+        (
+            ["sweep", "--detector", "joint", "--param", "registration_rival=true", "--n", "5"],
+            "joint.registration_rival: unknown parameter (did you mean registration_rivals?)",
+        ),
         (["sweep", "--detector", "nope", "--n", "5"], "unknown name 'nope'"),
         (["sweep", "--workers", "0", "--n", "5", "--trials", "1"], "--workers"),
         (["sweep", "--config", "/nonexistent.toml"], "no file"),

@@ -8,6 +8,7 @@ its parameters (unknown or out-of-range parameters are a one-line ``ValueError``
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -71,13 +72,28 @@ def one_line(exc: ValidationError, prefix: str) -> str:
     return "; ".join(parts)
 
 
+def _unknown_hint(name: str, unknown: list[str]) -> str:
+    """What a user who gave ``name`` parameters it does not have meant, as a suffix of the
+    error line: the detectors that have them (a parameter for another detector than the one
+    chosen, `sweep`'s default being ``paper``), or a close spelling of one it has."""
+    if not unknown:
+        return ""
+    key = unknown[0]
+    others = [d for d in detector_names() if d != name and key in get_detector(d).params.model_fields]
+    if others:
+        return f" ({key} is a parameter of {', '.join(others)}: choose one of them as the detector)"
+    close = difflib.get_close_matches(key, list(get_detector(name).params.model_fields), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
 def detector_params(name: str, **params: Any) -> BaseModel:
     """Validate a detector's parameters; a bad one is a one-line ValueError naming it."""
     det = get_detector(name)
     try:
         model = det.params(**params)
     except ValidationError as exc:
-        raise ValueError(one_line(exc, name)) from None
+        unknown = [str(e["loc"][0]) for e in exc.errors() if e["type"] == "extra_forbidden" and e["loc"]]
+        raise ValueError(one_line(exc, name) + _unknown_hint(name, unknown)) from None
     for key, value in model.model_dump().items():
         values = value if isinstance(value, tuple | list) else (value,)
         if any(isinstance(v, float) and not math.isfinite(v) for v in values):

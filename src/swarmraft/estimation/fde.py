@@ -1,13 +1,13 @@
 """The `fde` detector: fault detection and exclusion as in GNSS receiver integrity monitoring
 (RAIM). Drones most of whose two-way ranges disagree (`two_way_outliers`: range tampering)
-are excluded first. Then estimate all positions jointly from every trusted report and range; if the weighted
-sum of squared residuals fails a chi-square test at false-alarm probability ``p_fa``, or the
-largest GNSS residual block fails its own 3-dof test at ``p_fa / n``, exclude the drone with
-the largest residual contribution (its GNSS report and its own ranges), together with any
-drone whose contribution is gross (above the local test and half the largest), and
-repeat, until the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain. The
-final trusted set goes through `integrity.finish` (robust estimate, statuses, protection
-levels): if its tests still fail, exclusion is exhausted and the status is ``alarm``."""
+are excluded first. Then estimate all positions jointly from every trusted report and range;
+if the weighted sum of squared residuals fails a chi-square test at false-alarm probability
+``p_fa``, or the largest GNSS residual block fails its own 3-dof test at ``p_fa / n``,
+exclude the drone with the largest residual contribution (its GNSS report and its own
+ranges), one drone a round (each re-solve starts from the last solution), and repeat, until
+the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain. The final trusted
+set goes through `integrity.finish` (robust estimate, statuses, protection levels): if its
+tests still fail, exclusion is exhausted and the status is ``alarm``."""
 
 from __future__ import annotations
 
@@ -15,12 +15,10 @@ import numpy as np
 from pydantic import Field
 
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max
-from swarmraft.estimation.joint import chi2_quantile, joint_estimate, residual_statistics, tests_pass
+from swarmraft.estimation.joint import joint_estimate, residual_statistics, tests_pass
 from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
-
-GROSS = 1.0  # contributions above this share of the worst are excluded together with it
 
 
 class FDEParams(IntegrityParams):
@@ -75,16 +73,7 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
         failed = ~tests_pass(gnss_q, total, dof, tr, p.p_fa)
         can = (tr.sum(axis=1) > p.min_trusted) & ((~tr).sum(axis=1) < f_max)
         go = failed & can
-        score = np.where(tr, per, -np.inf)
-        worst = np.argmax(score, axis=1)
-        # Gross faults need not wait their turn: with the worst, exclude every drone whose
-        # contribution is above both the local test and half the worst, up to f_max.
-        gross = tr & (per > np.maximum(chi2_quantile(1 - p.p_fa / n, 3), GROSS * score.max(axis=1))[:, None])
-        gross[np.arange(len(worst)), worst] = True
-        room = f_max - (~tr).sum(axis=1)
-        rank = np.argsort(np.argsort(-score, axis=1), axis=1)
-        gross &= rank < room[:, None]
-        gross &= go[:, None]
-        trusted[active] &= ~gross
+        worst = np.argmax(np.where(tr, per, -np.inf), axis=1)
+        trusted[active[go], worst[go]] = False
         active = active[go]
     return finish(batch, p, noise, trusted, starts=(x_all,), diagnostics={"chi2": stat})

@@ -552,3 +552,25 @@ def test_a_hypothesis_the_identity_gets_wrong_is_inverted_directly(monkeypatch):
     assert (before.status == "ok").all()
     assert (after.status == before.status).all() and (after.faulty == before.faulty).all()
     assert np.allclose(after.hpl, before.hpl, rtol=1e-5) and np.allclose(after.vpl, before.vpl, rtol=1e-5)
+
+
+def test_a_vertical_error_beyond_its_level_counts_though_a_large_horizontal_level_covers_it_in_3d():
+    """`ok_over_20m_hv` judges each axis against its own level: a drone 48 m off vertically
+    with a vertical level of 14.6 m (a flat layer's `clique` verdict, trial 539 of seed 2025
+    at (7, 3)) is over, though its 3-D error (71 m) is under the 3-D level (111 m) that
+    `ok_over_20m_pl` uses; a drone 25 m off horizontally within its horizontal level is not."""
+    from swarmraft.estimation import VerdictBatch
+    from swarmraft.experiments.trials import Draw, integrity_metrics
+
+    truth = np.zeros((3, 2, 3))
+    pos = truth.copy()
+    pos[:, 0] = [37.4, 37.4, 48.1]  # 52.9 m horizontally, 48.1 m vertically
+    pos[2, 1] = [25.0, 0.0, 0.0]
+    hpl = np.full((3, 2), 109.6)
+    vpl = np.full((3, 2), 14.6)
+    v = VerdictBatch(pos, np.zeros((3, 2), bool), np.array(["ok", "alarm", "ok"]), hpl=hpl, vpl=vpl)
+    d = Draw(truth, truth, np.zeros((3, 2, 2)), np.zeros((3, 2), bool))
+    m = integrity_metrics(d, v)
+    assert m["ok_over_20m_pl"].tolist() == [0, 0, 0]
+    assert m["ok_over_20m_hv"].tolist() == [1, 0, 1]  # an alarm's drones are not counted
+    assert m["misleading"].tolist() == [1, 0, 1]

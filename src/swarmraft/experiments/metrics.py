@@ -47,6 +47,7 @@ CELL_COLUMNS = (
     "misleading_rate",
     "misleading_trials",
     "ok_over_20m_pl",
+    "ok_over_20m_hv",
     "ok_over_100m",
     "undetermined_rate",
 )
@@ -68,6 +69,7 @@ CELL_FINITE = (
     "honest_bound_excluded",
     "misleading_trials",
     "ok_over_20m_pl",
+    "ok_over_20m_hv",
     "ok_over_100m",
     "undetermined_rate",
 )
@@ -90,6 +92,7 @@ CELL_COUNTS = (
     "honest_bound_excluded",
     "misleading_trials",
     "ok_over_20m_pl",
+    "ok_over_20m_hv",
     "ok_over_100m",
 )
 
@@ -167,6 +170,7 @@ def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) 
     row["misleading_rate"] = float(mis[ok].mean()) if ok.any() else float("nan")
     row["misleading_trials"] = int(mis.sum())
     row["ok_over_20m_pl"] = int(np.asarray(trials["ok_over_20m_pl"], float).sum())
+    row["ok_over_20m_hv"] = int(np.asarray(trials["ok_over_20m_hv"], float).sum())
     row["ok_over_100m"] = int(np.asarray(trials["ok_over_100m"], float).sum())
     n = int(trials["n"][0])
     row["undetermined_rate"] = float(np.asarray(trials["undetermined"], float).sum() / (n * rec.size))

@@ -21,7 +21,8 @@ TRIAL_COLUMNS = (
     *("detection_rate", "false_positive_rate", "identified", "status"),
     *("attacked_sq", "attacked_bound", "attacked_nees", "attacked_catastrophic"),
     *("honest_sq", "honest_bound", "honest_nees", "honest_catastrophic"),
-    *("hpe", "hpl", "vpe", "vpl", "misleading", "ok_over_20m_pl", "ok_over_100m", "undetermined"),
+    *("hpe", "hpl", "vpe", "vpl", "misleading", "ok_over_20m_pl", "ok_over_20m_hv", "ok_over_100m"),
+    "undetermined",
 )
 
 
@@ -132,7 +133,11 @@ def integrity_metrics(d: Draw, v: VerdictBatch) -> dict[str, np.ndarray]:
     to (or furthest beyond) its protection level (max of hpe/hpl and vpe/vpl; nan where the
     detector gives no protection level), and counts of drones in an ``ok`` verdict whose
     error exceeds its protection level (``misleading``: hpe > hpl or vpe > vpl), exceeds
-    max(20 m, the 3-D protection level) or 100 m, and of drones left undetermined."""
+    max(20 m, the 3-D protection level) (``ok_over_20m_pl``), has a horizontal error above
+    max(20 m, hpl) or a vertical one above max(20 m, vpl) (``ok_over_20m_hv``: each axis
+    against its own level, as misleading information is judged; the 3-D test lets a
+    drone's large horizontal level cover a vertical error far beyond its vertical level),
+    or exceeds 100 m, and of drones left undetermined."""
     err = v.positions - d.truth
     hpe, vpe = np.hypot(err[..., 0], err[..., 1]), np.abs(err[..., 2])
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -149,6 +154,7 @@ def integrity_metrics(d: Draw, v: VerdictBatch) -> dict[str, np.ndarray]:
         "vpl": v.vpl[t, pick],
         "misleading": (ok & ((hpe > v.hpl) | (vpe > v.vpl))).sum(axis=1),
         "ok_over_20m_pl": (ok & (e3 > np.fmax(20.0, pl3))).sum(axis=1),
+        "ok_over_20m_hv": (ok & ((hpe > np.fmax(20.0, v.hpl)) | (vpe > np.fmax(20.0, v.vpl)))).sum(axis=1),
         "ok_over_100m": (ok & (e3 > 100.0)).sum(axis=1),
         "undetermined": (~np.isfinite(e3)).sum(axis=1),
     }

@@ -15,7 +15,7 @@ from swarmraft.estimation.noise import NoiseModel
 from swarmraft.estimation.rivals import rival_sets
 from swarmraft.estimation.robust import robust_estimate
 from swarmraft.experiments import build_config
-from swarmraft.experiments.trials import draw, snapshot_batch
+from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
 from swarmraft.world import choose_attackers, flat_layer, near_line, uniform_cube
 from swarmraft.world.geometry import true_distances
 
@@ -574,3 +574,17 @@ def test_a_vertical_error_beyond_its_level_counts_though_a_large_horizontal_leve
     assert m["ok_over_20m_pl"].tolist() == [0, 0, 0]
     assert m["ok_over_20m_hv"].tolist() == [1, 0, 1]  # an alarm's drones are not counted
     assert m["misleading"].tolist() == [1, 0, 1]
+
+
+def test_a_separation_whose_re_solve_crawled_is_solved_again_before_a_verdict_says_ok():
+    """Flat layer (7, 3), trial 539 of seed 2025: `clique` trusts drone 3, spoofed 44 m, which
+    tilts the layer and puts flagged drone 0 48 m up. The other trusted drones lie near a
+    line, so without drone 3 the tilt is nearly free: the exact separation re-solved from the
+    estimate crawled (1.4 m in 20 steps) and the verdict said ok, 48 m off vertically with a
+    vertical level of 14.6 m. Solved again from the closed form, drone 0 moves 27 m: alarm."""
+    cfg = build_config("realistic", n=(7,), f=(3,), trials=2000, geometry="flat")
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 3, 0)), 1000, 7, 3)
+    v = verify_batch(snapshot_batch(cfg, d).subset(np.array([539])), "clique")
+    assert d.attackers[539, 3] and not v.faulty[0, 3]  # the spoofer trusted
+    assert v.status[0] == "alarm"
+    assert v.diagnostics["alarm_cause"][0] == "separation test"

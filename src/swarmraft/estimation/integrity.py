@@ -254,15 +254,15 @@ def subset_separations(
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
     skip: np.ndarray | None = None,
-    again: np.ndarray | None = None,
+    again: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact solution separations (T, j, n, 3): for trials with at most ``at_most`` trusted
     drones, each hypothesis "trusted drone j is faulty" re-solved from x (Levenberg-Marquardt
     without j's report and the ranges it measured) minus x; nan elsewhere, and in the trials
     ``skip`` (T,) marks. Few trusted drones are where a fault bends the problem most and the
     linearised separation misses it. Also returns which trials (T,) have a hypothesis whose
-    re-solve did not converge; in the trials ``again`` (T,) marks, such a hypothesis is solved
-    from closed-form multilateration too, and the lower cost kept (`assess`)."""
+    re-solve did not converge; with ``again``, such a hypothesis is solved from closed-form
+    multilateration too, and the lower cost kept (`assess`)."""
     T, n, _ = x.shape
     out = np.full((T, n, n, 3), np.nan)
     unconverged = np.zeros(T, dtype=bool)
@@ -296,8 +296,8 @@ def subset_separations(
 
     xj, cost, converged = solve(x[t_idx], np.arange(t_idx.size))
     unconverged[t_idx[~converged]] = True
-    if again is not None:
-        k = np.flatnonzero(~converged & again[t_idx])
+    if again:
+        k = np.flatnonzero(~converged)
         if k.size:
             x0 = initial_positions(
                 reported[t_idx[k]], ranges[t_idx[k]], keep[k], None if pr is None else pr[k]
@@ -393,6 +393,7 @@ def assess(
     p: IntegrityParams,
     prior: np.ndarray | None = None,
     prior_sigma: float | None = None,
+    again: bool = False,
 ) -> Assessment:
     """Statuses and protection levels of a joint estimate (see the module docstring).
 
@@ -405,43 +406,8 @@ def assess(
     tilt is nearly free: the re-solve from x moved drone 0 1.4 m in its 20 steps (8.5 m in
     200, where it stopped), from the closed form 27 m, at a lower cost. The separation test
     missed the fault and the verdict said ``ok``, 48 m off vertically with a vertical level
-    of 14.6 m; assessed again it is an ``alarm``. Only would-be ``ok`` verdicts are: the
-    others are not used either way."""
-    a, unconverged = _assess(est, reported, ranges, trusted, noise, p, prior, prior_sigma)
-    rows = np.flatnonzero((a.status == "ok") & unconverged)
-    if not rows.size:
-        return a
-    sub = Estimate(*(getattr(est, k)[rows] for k in Estimate.__dataclass_fields__))
-    pr = None if prior is None else prior[rows]
-    b, _ = _assess(
-        sub,
-        reported[rows],
-        ranges[rows],
-        trusted[rows],
-        noise,
-        p,
-        pr,
-        prior_sigma,
-        again=np.ones(rows.size, bool),
-    )
-    return Assessment(
-        *(merged_rows(getattr(a, k), rows, getattr(b, k)) for k in Assessment.__dataclass_fields__)
-    )
-
-
-def _assess(
-    est: Estimate,
-    reported: np.ndarray,
-    ranges: np.ndarray,
-    trusted: np.ndarray,
-    noise: NoiseModel,
-    p: IntegrityParams,
-    prior: np.ndarray | None = None,
-    prior_sigma: float | None = None,
-    again: np.ndarray | None = None,
-) -> tuple[Assessment, np.ndarray]:
-    """`assess`, and which trials have an exact separation whose re-solve did not converge
-    (`subset_separations`, ``again``)."""
+    of 14.6 m; assessed again (``again``) it is an ``alarm``. Only would-be ``ok`` verdicts
+    are: the others are not used either way."""
     x = est.x
     T, n, _ = x.shape
     _, gq, total, dof = residual_statistics(x, reported, ranges, trusted, noise)
@@ -526,7 +492,16 @@ def _assess(
     vpl[weak] = np.inf
     status = np.where(alarm, "alarm", np.where(weak.any(axis=1), "degenerate", "ok")).astype(object)
     drone_status = np.where(alarm[:, None], "alarm", np.where(weak, "degenerate", "ok")).astype(object)
-    return Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq), unconverged
+    a = Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq)
+    rows = np.flatnonzero((status == "ok") & unconverged) if not again else np.zeros(0, int)
+    if not rows.size:
+        return a
+    sub = Estimate(*(getattr(est, k)[rows] for k in Estimate.__dataclass_fields__))
+    pr = None if prior is None else prior[rows]
+    b = assess(sub, reported[rows], ranges[rows], trusted[rows], noise, p, pr, prior_sigma, again=True)
+    return Assessment(
+        *(merged_rows(getattr(a, k), rows, getattr(b, k)) for k in Assessment.__dataclass_fields__)
+    )
 
 
 def finish(

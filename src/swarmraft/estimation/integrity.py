@@ -499,9 +499,7 @@ def assess(
     sub = Estimate(*(getattr(est, k)[rows] for k in Estimate.__dataclass_fields__))
     pr = None if prior is None else prior[rows]
     b = assess(sub, reported[rows], ranges[rows], trusted[rows], noise, p, pr, prior_sigma, again=True)
-    return Assessment(
-        *(merged_rows(getattr(a, k), rows, getattr(b, k)) for k in Assessment.__dataclass_fields__)
-    )
+    return _merged(est, a, rows, sub, b)[1]
 
 
 def finish(

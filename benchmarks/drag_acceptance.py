@@ -127,6 +127,8 @@ def main() -> None:
     )
     args = ap.parse_args()
     params = param_values(ap, args.param, "joint")
+    if params and args.part == "honest-world":
+        ap.error("--param: honest-world runs the drag-off test alone, no detector")
     seeds = _seeds(args.seeds or {"drag": "1", "crash": "1-10"}.get(args.part, "1-3"))
     if args.part in ("honest", "honest-world"):
         fn = honest if args.part == "honest" else honest_world

@@ -358,3 +358,31 @@ def test_mission_help_names_every_shipped_scenario():
     help_text = " ".join(r.output.split())
     missing = [name for name in shipped_scenarios() if name not in help_text]
     assert not missing and len(shipped_scenarios()) >= 11, missing
+
+
+def test_integrity_figure_counts_the_verdicts_it_cannot_draw(results, tmp_path):
+    """The Stanford diagram draws the ok verdicts; the others are counted in its title, by
+    status, as trials.csv has them. A folder of `paper` verdicts (no protection levels) is a
+    one-line error."""
+    from swarmraft.experiments.sweep import load_results
+    from swarmraft.viz.integrity import verdict_counts
+
+    out, _ = results
+    r = CliRunner().invoke(main, ["figure", "integrity", str(out)])
+    assert r.exit_code == 2 and "no protection levels" in r.output and "Traceback" not in r.output
+
+    out = tmp_path / "joint"
+    args = ["sweep", "--preset", "realistic", "--detector", "joint", "--n", "7", "--f", "3"]
+    r = CliRunner().invoke(main, [*args, "--trials", "60", "--workers", "1", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    _, trials, _ = load_results(out)
+    status = list(trials["status"])
+    line = verdict_counts(trials["status"])
+    assert line.startswith(f"{status.count('ok')} ok of 60 verdicts; not ok (not to be used): ")
+    for s in ("alarm", "unidentifiable", "degenerate"):  # (7, 3): most are degenerate
+        assert (f"{s} {status.count(s)}" in line) == (status.count(s) > 0)
+    assert status.count("degenerate") > 0
+    r = CliRunner().invoke(main, ["figure", "integrity", str(out)])
+    assert r.exit_code == 0, r.output
+    png = out / "figures" / "integrity.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and str(png) in r.output

@@ -5,8 +5,8 @@ its protection level; `experiments.trials.integrity_metrics`). The plane is cut 
 diagonal error = protection level: below it the protection level bounds the error (normal
 operation); above it, with status ``ok``, is misleading information, the case integrity
 monitoring exists to make rare. Counts are binned on log axes; the numbers of points in
-each region and of verdicts that were not ``ok`` (no position to protect) are printed on the
-panel.
+each region are printed on each panel, the verdicts that were not ``ok`` (no position to
+protect) by status in the title.
 """
 
 from __future__ import annotations
@@ -22,14 +22,16 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
 
-def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str, not_ok: dict[str, int]) -> None:
+def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str) -> None:
     show = np.isfinite(err) & np.isfinite(pl) & (pl > 0)
     e, p = np.maximum(err[show], 1e-3), pl[show]
     lo = 10 ** np.floor(np.log10(max(min(e.min(initial=1.0), p.min(initial=1.0)), 1e-3)))
     hi = 10 ** np.ceil(np.log10(max(e.max(initial=1.0), p.max(initial=1.0))))
     bins = np.logspace(np.log10(lo), np.log10(hi), 60)
     if e.size:
-        h = ax.hist2d(p, e, bins=[bins, bins], norm=LogNorm(), cmap="viridis")
+        # counts from 1 to at least 10 on the colour bar (a bar of one value has no scale)
+        top = max(10.0, float(np.histogram2d(p, e, bins=[bins, bins])[0].max()))
+        h = ax.hist2d(p, e, bins=[bins, bins], norm=LogNorm(vmin=1, vmax=top), cmap="viridis")
         plt.colorbar(h[3], ax=ax, label="verdicts per cell")
     ax.plot([lo, hi], [lo, hi], color="black", lw=1)
     ax.fill_between([lo, hi], [lo, hi], [hi, hi], color="tab:red", alpha=0.12, lw=0)
@@ -47,16 +49,24 @@ def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str, not_ok: dict[str, in
         color="tab:red",
         fontsize=9,
     )
-    rest = ", ".join(f"{k} {v}" for k, v in not_ok.items() if v) or "none"
     ax.text(
         0.97,
         0.03,
-        f"normal operation: {normal}\nnot ok (not to be used): {rest}",
+        f"normal operation\n(error <= PL, status ok): {normal}",
         transform=ax.transAxes,
         ha="right",
         va="bottom",
         fontsize=9,
     )
+
+
+def verdict_counts(status: np.ndarray) -> str:
+    """The figure's count of verdicts by status: how many are ``ok`` (drawn) and how many,
+    of each other status, have no position to use (not drawn)."""
+    status = np.asarray(status).astype(str)
+    not_ok = {s: int((status == s).sum()) for s in ("alarm", "unidentifiable", "degenerate")}
+    rest = ", ".join(f"{k} {v}" for k, v in not_ok.items() if v) or "none"
+    return f"{int((status == 'ok').sum())} ok of {status.size} verdicts; not ok (not to be used): {rest}"
 
 
 def stanford(trials: Mapping[str, np.ndarray], out: Path, title: str) -> Path:
@@ -69,17 +79,17 @@ def stanford(trials: Mapping[str, np.ndarray], out: Path, title: str) -> Path:
         raise ValueError(
             "no protection levels in these trials: the detector gives none (paper) or no verdict was ok"
         )
-    not_ok = {s: int((status == s).sum()) for s in ("alarm", "unidentifiable", "degenerate")}
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.6))
-    _panel(axes[0], np.asarray(trials["hpe"], float)[ok], hpl[ok], "horizontal", not_ok)
+    _panel(axes[0], np.asarray(trials["hpe"], float)[ok], hpl[ok], "horizontal")
     _panel(
         axes[1],
         np.asarray(trials["vpe"], float)[ok],
         np.asarray(trials["vpl"], float)[ok],
         "vertical",
-        not_ok,
     )
-    fig.suptitle(f"Stanford diagram: {title}; {ok.sum()} ok of {status.size} verdicts (worst drone of each)")
+    # the verdicts with no position to use are counted once, beside the ok ones, not lost
+    # in a corner of a panel
+    fig.suptitle(f"Stanford diagram: {title}; worst drone of each ok verdict\n{verdict_counts(status)}")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

@@ -203,3 +203,28 @@ def test_vote_with_the_new_recovery_is_exact_on_reference_data(n, f):
     err_new = np.linalg.norm(new.positions - truth, axis=2)
     assert err_new.max() < 1e-6  # no local minima, no re-marking of small spoofs
     assert err_ref > 1e-3  # the reference solver's wrong minima
+
+
+def test_a_drone_no_range_checked_is_not_ok():
+    """A drone that measured no range has no vote: nothing checked its report, which the
+    verdict passes through. It is `degenerate` (so is the verdict), never `ok`; with no range
+    at all, or a single drone, every drone is. A spoofed drone 27 m off was `ok` before."""
+    truth = CUBE + [5.0, 7.0, 3.0]
+    rep = truth.copy()
+    rep[4] += [20.0, -15.0, 10.0]
+    v = verify(Snapshot(reported=rep, ranges=np.full((8, 8), np.nan)))
+    assert v.status == "degenerate" and (v.drone_status == "degenerate").all()
+    assert not v.faulty.any()  # nothing could accuse it either
+    ranges = exact_ranges(truth)
+    ranges[4, :] = np.nan  # drone 4 measured nothing; the others measured it
+    v = verify(Snapshot(reported=rep, ranges=ranges))
+    assert v.status == "degenerate"
+    assert v.drone_status.tolist() == ["degenerate" if i == 4 else "ok" for i in range(8)]
+    # the others' votes still see it: each honest drone has one -1 vote (from 4's report),
+    # outweighed; drone 4 itself is unchecked and keeps its report
+    np.testing.assert_array_equal(v.positions[4], rep[4])
+    v = verify(Snapshot(reported=rep[:1], ranges=np.full((1, 1), np.nan)))
+    assert v.status == "degenerate"
+    # a drone that measured ranges but whose vote is a tie was checked: ok as before
+    v = verify(Snapshot(reported=truth, ranges=exact_ranges(truth)))
+    assert v.status == "ok" and (v.drone_status == "ok").all()

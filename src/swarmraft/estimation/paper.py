@@ -180,6 +180,11 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
             settle(ti, ai, *_stage2(reported, dists, measured, flags, ti, ai, p))
 
     thin = flags & (anchors < 3)
+    # a drone that measured no range has no vote (every pair abstains): nothing checked the
+    # report the verdict passes through, so it is not `ok` (9 drones with no range at all
+    # were `ok`, a spoofed one 27 m off among them)
+    voters = (~np.isnan(ranges) & ~np.eye(n, dtype=bool)).sum(axis=2)
+    thin |= ~flags & (voters == 0)
     # The vote's own consistency test, applied to the answer: a recovered drone whose anchors
     # would still vote against it (a wrong local minimum of the solver) is an alarm.
     after = pairwise_votes(positions, np.where(flags[:, None, :], np.nan, ranges), p.tau)
@@ -196,5 +201,5 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
             "anchors": anchors,
             "deviation": deviation,
         },
-        drone_status=np.where(thin, "degenerate", status[:, None]),
+        drone_status=np.where(alarm[:, None], "alarm", np.where(thin, "degenerate", "ok")),
     )

@@ -277,3 +277,19 @@ def test_other_commands_check_the_same_options(cwd, args, needle):
 )
 def test_mission_detector_is_checked_before_anything_is_written(cwd, extra, args, needle):
     fails_cleanly(["mission", "--scenario", scenario(cwd, extra), *args, "--out", "o"], needle, cwd)
+
+
+@pytest.mark.parametrize(
+    ("param", "needle"),
+    [
+        # checked for every swarm size before run.json is written (it was written, with
+        # "complete": false, and the sweep failed at its first cell)
+        ("f_max=99", "joint.f_max: 99 attackers cannot be tolerated among n = 7 drones"),
+        # a negative sigma was floored to 1 mm: every verdict an alarm, all drones flagged
+        ("gnss_sigma=[-1.5,-3]", "joint.gnss_sigma: expected (horizontal, vertical), both finite and >= 0"),
+        ("gnss_common=[-2,-2]", "joint.gnss_common: expected (horizontal, vertical)"),
+    ],
+)
+def test_detector_parameters_checked_before_the_sweep_starts(cwd, param, needle):
+    args = ["sweep", "--preset", "realistic", "--detector", "joint", "--param", param]
+    fails_cleanly([*args, "--n", "7", "--f", "1", "--trials", "5", "--out", "o"], needle, cwd)

@@ -1,9 +1,11 @@
 """The detectors beyond the paper: clique, fde, joint, shape."""
 
+import re
+
 import numpy as np
 import pytest
 
-from swarmraft.estimation import detector_names, verify, verify_batch
+from swarmraft.estimation import SnapshotBatch, detector_names, verify, verify_batch, verify_given
 from swarmraft.estimation.bounds import gnss_covariance, swarm_crb
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import draw, snapshot_batch
@@ -173,3 +175,33 @@ def test_joint_does_not_flag_an_honest_drone_whose_inclusion_passes_the_residual
 
     assert v.status == "ok"
     assert not v.faulty.any()
+
+
+def _batch_cases():
+    rep = np.random.default_rng(0).uniform(0, 100, (2, 6, 3))
+    rng = np.linalg.norm(rep[:, :, None] - rep[:, None], axis=3)
+    neg, nan_rep = rng.copy(), rep.copy()
+    neg[0, 0, 1] = -50.0
+    nan_rep[0, 1, 1] = np.nan
+    return [
+        (SnapshotBatch(rep, rng, (1.5, 3.0), -0.1), "range_sigma: expected a finite number >= 0"),
+        (SnapshotBatch(rep, rng, (1.5, 3.0), float("nan")), "range_sigma: expected a finite number >= 0"),
+        (SnapshotBatch(rep, neg, (1.5, 3.0), 0.1), "ranges: measured distances must be finite and >= 0"),
+        (SnapshotBatch(nan_rep, rng, (1.5, 3.0), 0.1), "reported: positions must be finite"),
+        (SnapshotBatch(rep[0], rng, (1.5, 3.0), 0.1), "reported: expected shape (T, n, 3)"),
+        (SnapshotBatch(rep, rng[:, :, :5], (1.5, 3.0), 0.1), "ranges: expected shape (2, 6, 6)"),
+        (SnapshotBatch(rep, rng, (-1.5, 3.0), 0.1), "gnss_sigma: expected (horizontal, vertical)"),
+        (SnapshotBatch(rep, rng, (1.5, 3.0), 0.1, rep[:1], 2.0), "prior: expected shape (2, 6, 3)"),
+        (SnapshotBatch(rep, rng, (1.5, 3.0), 0.1, rep, -2.0), "prior_sigma: expected a finite number > 0"),
+    ]
+
+
+@pytest.mark.parametrize(("batch", "needle"), _batch_cases())
+@pytest.mark.parametrize("det", ["paper", "joint"])
+def test_a_bad_batch_is_a_one_line_error(batch, needle, det):
+    """`verify_batch` checks a batch from outside as `Snapshot` checks one snapshot: a
+    negative range or range sigma gave `ok`, a nan report a LinAlgError from inside numba."""
+    with pytest.raises(ValueError, match=re.escape(needle)):
+        verify_batch(batch, det)
+    with pytest.raises(ValueError, match=re.escape(needle)):
+        verify_given(batch, np.ones((2, 6), bool), "joint")

@@ -8,11 +8,11 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, ValidationInfo, field_validator
 
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.link_params import LinkParams
-from swarmraft.estimation.snapshot import SnapshotBatch
+from swarmraft.estimation.snapshot import SnapshotBatch, sigma_pair
 
 
 class NoiseParams(LinkParams):
@@ -27,6 +27,16 @@ class NoiseParams(LinkParams):
     gnss_common: tuple[float, float] | None = Field(
         None, description="(horizontal, vertical) GNSS error common to all drones, m; None: the snapshot's"
     )
+
+    @field_validator("gnss_sigma", "gnss_common")
+    @classmethod
+    def _pair(cls, v: tuple[float, float] | None, info: ValidationInfo) -> tuple[float, float] | None:
+        """Both finite and >= 0, as a snapshot's (a negative sigma was floored to 1 mm, and
+        every drone of a verdict flagged)."""
+        try:
+            return None if v is None else sigma_pair(str(info.field_name), v)
+        except ValueError as e:  # the caller names the field
+            raise ValueError(str(e).split(": ", 1)[1]) from None
 
 
 _MEMO: dict[tuple[str, bytes], np.ndarray] = {}

@@ -3,12 +3,18 @@
 select a detector the same way.
 
 A detector is a function ``(SnapshotBatch, params) -> VerdictBatch`` with a pydantic model of
-its parameters (unknown or out-of-range parameters are a one-line ``ValueError``).
+its parameters (unknown or out-of-range parameters are a one-line ``ValueError``), registered
+with the decorator ``@register(name, ParamsModel, summary)``. Detectors from other packages
+are found through the entry-point group ``swarmraft.detectors`` (each entry a module that
+registers its detectors when imported), loaded the first time a name is not known or the
+names are listed, in every process: the command line and a sweep's workers see them too.
+docs/detectors.md, "Writing a detector".
 """
 
 from __future__ import annotations
 
 import difflib
+import importlib.metadata
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,23 +42,58 @@ class Detector:
 _REGISTRY: dict[str, Detector] = {}
 
 
+PLUGIN_GROUP = "swarmraft.detectors"
+_plugins_loaded = False
+
+
 def register(name: str, params: type[BaseModel], summary: str) -> Callable[[DetectorFn], DetectorFn]:
-    """Decorator: register a batch detector under ``name``."""
+    """Decorator: register a batch detector under ``name``::
+
+        @register("mine", MyParams, "one line on what it does")
+        def mine(batch: SnapshotBatch, p: MyParams) -> VerdictBatch: ...
+
+    ``params`` must refuse unknown fields (``extra="forbid"``, as `IntegrityParams` and
+    `LinkParams` do), so that a misspelt parameter is an error rather than ignored."""
+    if params.model_config.get("extra") != "forbid":
+        raise ValueError(
+            f"detector {name!r}: {params.__name__} must refuse unknown parameters: derive it from "
+            "IntegrityParams or LinkParams, or set model_config = ConfigDict(extra='forbid')"
+        )
 
     def wrap(fn: DetectorFn) -> DetectorFn:
-        if name in _REGISTRY:
-            raise ValueError(f"detector {name!r} is already registered")
+        old = _REGISTRY.get(name)
+        # the same function registered again (its module imported twice, as a script's
+        # __main__ and by name) is no conflict; another function under the name is
+        if old is not None and (old.run.__module__, old.run.__qualname__) != (fn.__module__, fn.__qualname__):
+            raise ValueError(f"detector {name!r} is already registered (by {old.run.__module__})")
         _REGISTRY[name] = Detector(name=name, run=fn, params=params, summary=summary)
         return fn
 
     return wrap
 
 
+def _load_plugins() -> None:
+    """Import every module of the entry-point group ``swarmraft.detectors`` once; a plugin
+    that fails to import is a one-line ValueError naming it."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for ep in importlib.metadata.entry_points(group=PLUGIN_GROUP):
+        try:
+            ep.load()
+        except Exception as exc:  # noqa: BLE001 - any import error of a plugin is reported as its own
+            raise ValueError(f"detector plugin {ep.name} ({ep.value}): {type(exc).__name__}: {exc}") from None
+
+
 def detector_names() -> list[str]:
+    _load_plugins()
     return sorted(_REGISTRY)
 
 
 def get_detector(name: str) -> Detector:
+    if name not in _REGISTRY:
+        _load_plugins()
     try:
         return _REGISTRY[name]
     except KeyError:
@@ -103,7 +144,12 @@ def detector_params(name: str, **params: Any) -> BaseModel:
 
 def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
     """Verify a batch with a registered detector, on ranges screened for bad links first
-    where its parameters ask for it (`links.run_screened`)."""
+    where its parameters ask for it (`links.run_screened`). The batch is checked first
+    (`SnapshotBatch.checked`: a one-line ValueError for bad input)."""
+    return _verify_batch(batch.checked(), detector, **params)
+
+
+def _verify_batch(batch: SnapshotBatch, detector: str, **params: Any) -> VerdictBatch:
     p = detector_params(detector, **params)
     with one_blas_thread():
         return run_screened(get_detector(detector).run, batch, p)
@@ -130,6 +176,7 @@ def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **
     its parameters, on ranges screened as the detector screens them. A detector without a
     noise model (``paper``) is a one-line ValueError."""
     check_known_set(detector, params)
+    batch = batch.checked()
     p = detector_params(detector, **params)
     trusted = np.asarray(trusted, bool)
     want = np.shape(batch.reported)[:2]
@@ -141,4 +188,4 @@ def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **
 
 def verify(snapshot: Snapshot, detector: str = "paper", **params: Any) -> Verdict:
     """Verify one snapshot with a registered detector; returns its `Verdict`."""
-    return verify_batch(SnapshotBatch.of(snapshot), detector, **params).item(0)
+    return _verify_batch(SnapshotBatch.of(snapshot), detector, **params).item(0)  # a Snapshot checks itself

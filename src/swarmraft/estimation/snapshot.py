@@ -160,6 +160,40 @@ class SnapshotBatch:
             gnss_common=snapshot.gnss_common,
         )
 
+    def checked(self) -> SnapshotBatch:
+        """This batch, after the checks `Snapshot` makes of one snapshot (shapes, finite
+        reports, ranges finite and >= 0 or nan, sigmas finite and >= 0, prior (T, n, 3),
+        prior_sigma > 0): a one-line ValueError for the first that fails. For batches from
+        outside; the detectors' own batches (`of`, `subset`) need none."""
+        rep = _as_float_array("reported", self.reported, "(T, n, 3)")
+        if rep.ndim != 3 or rep.shape[2] != 3 or rep.shape[1] < 1:
+            raise ValueError(f"reported: expected shape (T, n, 3) with n >= 1, got {rep.shape}")
+        if not np.isfinite(rep).all():
+            raise ValueError("reported: positions must be finite")
+        T, n = rep.shape[:2]
+        rng = _as_float_array("ranges", self.ranges, "(T, n, n)")
+        if rng.shape != (T, n, n):
+            raise ValueError(f"ranges: expected shape ({T}, {n}, {n}) to match reported, got {rng.shape}")
+        vals = rng[:, ~np.eye(n, dtype=bool)]
+        if np.isinf(vals).any() or (vals[~np.isnan(vals)] < 0).any():
+            raise ValueError("ranges: measured distances must be finite and >= 0 (nan = unmeasured)")
+        pairs = {k: getattr(self, k) for k in ("gnss_sigma", "gnss_common")}
+        pairs = {k: None if v is None else sigma_pair(k, v) for k, v in pairs.items()}
+        if self.range_sigma is not None and not _finite_nonnegative(self.range_sigma):
+            raise ValueError("range_sigma: expected a finite number >= 0, m")
+        prior = None
+        if self.prior is not None:
+            prior = _as_float_array("prior", self.prior, "(T, n, 3)")
+            if prior.shape != (T, n, 3) or np.isinf(prior).any():
+                raise ValueError(f"prior: expected shape ({T}, {n}, 3) of finite values or nan rows")
+        if self.prior_sigma is not None and not (
+            _finite_nonnegative(self.prior_sigma) and self.prior_sigma > 0
+        ):
+            raise ValueError("prior_sigma: expected a finite number > 0, m")
+        return SnapshotBatch(
+            rep, rng, pairs["gnss_sigma"], self.range_sigma, prior, self.prior_sigma, pairs["gnss_common"]
+        )
+
     def subset(self, rows: np.ndarray) -> SnapshotBatch:
         """The snapshots selected by ``rows`` (a boolean mask or indices)."""
         return SnapshotBatch(

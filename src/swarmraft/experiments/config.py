@@ -11,7 +11,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from swarmraft.estimation.registry import check_known_set, detector_params, one_line
+from swarmraft.estimation.integrity import IntegrityParams, resolve_f_max
+from swarmraft.estimation.registry import check_known_set, detector_params, get_detector, one_line
 from swarmraft.world import (
     AreaSpoof,
     Attack,
@@ -180,8 +181,14 @@ class SweepConfig(_Strict):
             raise ValueError("f: give either f or diagonal, not both")
         if not self.cells():
             raise ValueError("n/f: no cell with 1 <= f <= (n-1)/2 in this grid")
+        get_detector(self.detector)  # an unknown name is its own error, not a parameter's
         try:
-            detector_params(self.detector, **self.detector_params)
+            model = detector_params(self.detector, **self.detector_params)
+            # f_max against every swarm size now, not when the cell runs (by then run.json
+            # was written, and a corrected re-run into the folder refused)
+            if isinstance(model, IntegrityParams):
+                for n in sorted({n for n, _ in self.cells()}):
+                    resolve_f_max(model, n, self.detector)
         except ValueError as exc:
             raise ValueError(f"detector_params: {exc}") from None
         if self.known_set:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import inspect
 import json
 import platform
 import time
@@ -28,7 +29,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from swarmraft import __version__
-from swarmraft.estimation.registry import one_line
+from swarmraft.estimation.registry import get_detector, one_line
 from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
 from swarmraft.experiments.config import PRESETS, ConfigError, SweepConfig
@@ -82,14 +83,19 @@ def config_hash(config: SweepConfig) -> str:
 
 
 @functools.cache
-def code_hash() -> str:
+def code_hash(detector: str | None = None) -> str:
     """sha256 of the package's source files: which code made a cell (a resume with other
-    code would mix two versions' numbers in one table)."""
+    code would mix two versions' numbers in one table). With ``detector``, also the source
+    file of a detector registered from outside the package (a plugin or a script's own),
+    whose changes would otherwise pass unseen."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         h.update(str(path.relative_to(root)).encode())
         h.update(path.read_bytes())
+    source = inspect.getsourcefile(get_detector(detector).run) if detector else None
+    if source and not Path(source).resolve().is_relative_to(root):
+        h.update(Path(source).read_bytes())
     return h.hexdigest()
 
 
@@ -250,10 +256,11 @@ def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:
             raise ConfigError(
                 f"{meta_path}: not valid JSON ({exc}); remove the cell or use another --out"
             ) from None
-        if meta.get("code_sha256", code_hash()) != code_hash():
+        now = code_hash(config.detector)
+        if meta.get("code_sha256", now) != now:
             raise ConfigError(
                 f"--out {out}: {csv_path.name} was made by other code (source "
-                f"{str(meta.get('code_sha256'))[:12]}, now {code_hash()[:12]}); its numbers would "
+                f"{str(meta.get('code_sha256'))[:12]}, now {now[:12]}); its numbers would "
                 "mix with this version's: use another --out, or remove the cells to recompute"
             )
         if meta.get("config_sha256") != want:
@@ -329,7 +336,11 @@ def run_sweep(
     tick = progress(len(tasks) and config.trials * len(todo), len(todo)) if progress else None
     pending: dict[tuple[int, int], dict[int, dict]] = {c: {} for c in todo}
     executor_name = "none (all cells reused)"
-    meta = {"seed": config.seed, "config_sha256": config_hash(config), "code_sha256": code_hash()}
+    meta = {
+        "seed": config.seed,
+        "config_sha256": config_hash(config),
+        "code_sha256": code_hash(config.detector),
+    }
     if tasks:
         warm_up()
         with make_executor(workers, scheduler) as ex:

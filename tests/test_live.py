@@ -150,6 +150,10 @@ def test_record_dir_refuses_a_folder_that_is_not_a_missions_and_mixed_uses(tmp_p
     out = swarmraft("record", rc=2)
     assert out.startswith("error: give a mission folder DIR (to write a .rrd recording) or --scenario")
     assert len(out.strip().splitlines()) == 1
+    # a missing DIR is DIR's error, not --out's (whose default lies inside DIR)
+    out = swarmraft("record", str(tmp_path / "nope"), rc=2)
+    assert out.startswith("error: DIR: no folder ") and "--out" not in out
+    assert str(tmp_path / "nope") in "".join(out.split())
 
 
 @pytest.mark.parametrize(

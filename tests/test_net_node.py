@@ -8,6 +8,7 @@ ends them with SIGTERM once it has seen what it checks)."""
 
 import asyncio
 import os
+import re
 import signal
 import socket
 import sqlite3
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -290,6 +292,21 @@ def test_a_node_that_cannot_bind_or_is_misconfigured_exits_with_one_line(tmp_pat
     done = run_cli("node", "--id", "2", "--swarm", str(path))
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert "chmod 600" in done.stderr
+    # a damaged Raft database, and an out that is a file: one line each, not a traceback
+    db = Path(swarm.out) / "drone-3.sqlite"
+    db.parent.mkdir(parents=True, exist_ok=True)
+    db.write_bytes(b"not a database at all" * 100)
+    done = run_cli("node", "--id", "3", "--swarm", str(path), timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == f"error: {db}: not a drone's Raft database (file is not a database)"
+    text = path.read_text()
+    (tmp_path / "afile").write_text("x")
+    path.write_text(re.sub(r'(?m)^out = ".*"$', f'out = "{tmp_path / "afile"}"', text))
+    assert str(tmp_path / "afile") in path.read_text()
+    done = run_cli("node", "--id", "4", "--swarm", str(path), timeout=60)
+    assert done.returncode == 2, done.stderr
+    said = f"error: out: {tmp_path / 'afile'} is a file, not a folder (the swarm file's out)"
+    assert done.stderr.strip() == said
 
 
 def test_ctrl_c_stops_launch_and_every_drone_process(tmp_path):
@@ -373,3 +390,38 @@ def test_a_report_read_after_its_half_deadline_is_not_held_for_the_censorship_ch
     assert 1 not in host.drone.audit.timely.get(50, set())
     assert host._note_for_censorship(due)
     assert host.drone.audit.timely[500] == {1}
+
+
+WARM_CHECK = """
+import numba
+from swarmraft.estimation import joint, gnc
+from swarmraft.net.node import warm_up_detector
+from swarmraft.sim.mission import run_mission
+from swarmraft.sim.scenario import Scenario
+from swarmraft.sim.sensing import ScenarioWorld
+
+import tomllib
+from swarmraft.sim.scenario import find_scenario
+data = tomllib.loads(find_scenario("leader-crash-under-attack").read_text())
+data.update(duration_s=13, fault=[], protocol={"detector": "paper"})  # the spoofs from 10 s
+sc = Scenario(**data)
+kernels = [joint.levenberg_marquardt_kernel, gnc._gnc_kernel]
+warm_up_detector(ScenarioWorld.build(sc))
+before = [set(map(str, k.signatures)) for k in kernels]
+log = run_mission(sc)
+new = [sorted(set(map(str, k.signatures)) - b) for k, b in zip(kernels, before)]
+print("flagged", int(log.faulty.sum()), "new", sum(map(len, new)))
+"""
+
+
+def test_warm_up_loads_what_a_paper_mission_step_compiles():
+    """A node's warm-up loads every compiled kernel its steps use, whatever the detector: under
+    `paper` a record's re-estimate with a decided trusted set (a spoofed drone gated) loaded
+    Levenberg-Marquardt's kernel in the first such step, and on a cold cache compiled it: 43 s
+    inside a step, the swarm stalled behind one drone. A fresh process, so that nothing
+    loaded by other tests hides it."""
+    r = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    flagged, new = (int(w) for w in r.stdout.split()[1::2])
+    assert flagged > 0, r.stdout  # drones were gated: the path ran
+    assert new == 0, r.stdout

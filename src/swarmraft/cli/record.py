@@ -82,6 +82,8 @@ def _record_folder(folder: Path, out: Path | None) -> None:
     from swarmraft.viz.live import record_mission, require_rerun
 
     require_rerun("swarmraft record DIR")
+    if out is None and not folder.is_dir():  # the default --out is inside DIR: DIR is what is missing
+        raise click.BadParameter(f"no folder {folder}", param_hint="DIR")
     out = out if out is not None else folder / "recording.rrd"
     if out.suffix.lower() != ".rrd":
         raise click.BadParameter(f"{out}: give a file name ending in .rrd", param_hint="--out")

@@ -22,10 +22,12 @@ from swarmraft.net.launch import (
     free_udp_ports,
     prepare_swarm,
 )
+from swarmraft.net.node import warm_up_detector
 from swarmraft.net.relay import RelayThread
 from swarmraft.net.swarmfile import drone_file
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.scenario import Scenario
+from swarmraft.sim.sensing import ScenarioWorld
 
 #: How long after the scenario's end launch waits for the drones to stop by themselves.
 END_WAIT_S = 15.0
@@ -83,6 +85,14 @@ class LocalSwarm:
     # -- setting up ---------------------------------------------------------------------------
     def prepare(self) -> None:
         n = self.n
+        # the drones' compiled kernels loaded here first: on a cold cache (after an install)
+        # n drones compiling the same kernels at once took 21 s each to come up, none in
+        # time for step 0; compiled once here, each loads them from the disk cache
+        t0 = time.perf_counter()
+        warm_up_detector(ScenarioWorld.build(self.sc))
+        took = time.perf_counter() - t0
+        if took > 5.0:
+            self.say(f"compiled the detector's kernels in {took:.0f} s (once after an install)")
         delay = default_start_delay_s(n) if self.start_delay_s is None else self.start_delay_s
         self.start_delay_s = delay
         ports = free_udp_ports(2 * n)  # the drones' and the relay's, all distinct

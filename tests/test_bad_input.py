@@ -293,3 +293,24 @@ def test_mission_detector_is_checked_before_anything_is_written(cwd, extra, args
 def test_detector_parameters_checked_before_the_sweep_starts(cwd, param, needle):
     args = ["sweep", "--preset", "realistic", "--detector", "joint", "--param", param]
     fails_cleanly([*args, "--n", "7", "--f", "1", "--trials", "5", "--out", "o"], needle, cwd)
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        # a negative offset failed after the ROC's seconds of work, naming the attack's field
+        (["curves", "--n", "9", "--f", "2", "--trials", "10", "--offsets", "2,-5"], "--offsets: offsets are"),
+        # the same detector twice ran the same trials twice and tabled them twice
+        (["compare", "--detectors", "paper,joint,paper", "--n", "9", "--f", "2"], "--detectors: paper given"),
+        (
+            ["compare", "--attacks", "jump,jump", "--n", "9", "--f", "2"],
+            "--attacks: jump given more than once",
+        ),
+        # options a figure would not use were ignored
+        (["figure", "scaling", "res", "--view", "3d"], "--view: only for `swarmraft figure recovery`"),
+        (["figure", "all", "res", "--out", "x.png"], "--out: names one file, and `all` writes three"),
+    ],
+)
+def test_an_option_that_cannot_apply_is_refused_before_any_work(cwd, args, needle):
+    (cwd / "res").mkdir()
+    fails_cleanly([*args, "--out", "o"] if args[0] != "figure" else args, needle, cwd)

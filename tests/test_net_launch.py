@@ -10,6 +10,8 @@ import subprocess
 import sys
 import tomllib
 
+import pytest
+
 from swarmraft.experiments.mission import STEP_COLUMNS
 from swarmraft.net.launch import events, read_jsonl
 
@@ -145,3 +147,21 @@ def test_launch_refuses_a_bad_relay_choice_or_replay_log_in_one_line_naming_the_
         assert done.returncode == 2, done.stderr
         assert done.stderr.startswith(start) and len(done.stderr.strip().splitlines()) == 1, done.stderr
         assert not out.exists()  # nothing written, nothing started
+
+
+def test_a_launch_that_commits_nothing_fails_and_writes_strict_json(tmp_path):
+    """Step 0 at once and a 1 s scenario: the drones come up after it ended, nothing commits.
+    The run is void: exit status 1 with one line saying so (it was 0), and summary.json is
+    strict JSON, null where there is no latency (it held NaN, which parsers refuse)."""
+    scenario = tmp_path / "short.toml"
+    scenario.write_text('name = "short"\ndrones = 4\nduration_s = 1\n')
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", str(scenario), "--out", str(out)]
+    done = subprocess.run([*cmd, "--start-delay", "0"], capture_output=True, text=True, timeout=150)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "0 of 11 steps committed" in done.stdout
+    assert "error: no step was committed" in done.stderr and "Warning" not in done.stderr
+    summary = json.loads(
+        (out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"not JSON: {c}")
+    )
+    assert summary["latency_ms_median"] is None and summary["raft_messages_per_committed_step"] is None

@@ -60,6 +60,11 @@ def test_bad_snapshot_files_are_one_line(tmp_path, monkeypatch):
     fails_cleanly(
         ["verify", "cols.csv", "--detector", "paper"], "cols.csv: 2 drones, but no column r1", tmp_path
     )
+    # a row shorter or longer than the header (a short one read its missing range as unmeasured)
+    (tmp_path / "short.csv").write_text("x,y,z,r0,r1\n0,0,0,,10\n10,0,0,10\n")
+    (tmp_path / "long.csv").write_text("x,y,z,r0,r1\n0,0,0,,10,3,4\n10,0,0,10,\n")
+    fails_cleanly(["verify", "short.csv"], "short.csv, line 3: 4 values where the header has 5", tmp_path)
+    fails_cleanly(["verify", "long.csv"], "long.csv, line 2: 7 values where the header has 5", tmp_path)
     fails_cleanly(["verify", "keys.json"], "keys.json: unknown key 'sigma'", tmp_path)
     fails_cleanly(["verify", "s.txt"], "s.txt: expected a .json or .csv file", tmp_path)
     fails_cleanly(["verify", "s.csv"], "--range-sigma: s.csv gives no noise model", tmp_path)

@@ -205,9 +205,14 @@ def print_mission_summary(summary: dict) -> None:
             f"({_m(o['ins_alone_error_at_start_m'])} off at the start)",
             4,
         )
-    print_wrapped(f"consensus latency median {s['latency_ms_median']} ms, p99 {s['latency_ms_p99']} ms", 2)
+
+    def ms(v: float | None) -> str:
+        return "n/a" if v is None else f"{v} ms"
+
+    print_wrapped(f"consensus latency median {ms(s['latency_ms_median'])}, p99 {ms(s['latency_ms_p99'])}", 2)
+    per = s["raft_messages_per_committed_step"]
     print_wrapped(
-        f"Raft messages per committed step {s['raft_messages_per_committed_step']} "
+        f"Raft messages per committed step {'n/a' if per is None else per} "
         f"(minimum 2(n-1) = {s['raft_minimum_per_step']}), reports per step {s['reports_per_step']}",
         2,
     )

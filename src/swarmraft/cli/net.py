@@ -274,6 +274,9 @@ def launch(
         sys.exit(130)
     if not g.all_identical:
         sys.exit(1)
+    if g.committed == 0:  # a run with no record is void, whatever its files say
+        err_console.print("error: no step was committed (were the drones up? see the warnings above)")
+        sys.exit(1)
 
 
 @main.command("status")

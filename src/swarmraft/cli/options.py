@@ -145,6 +145,9 @@ def name_list(text: str, name: str, known: list[str], noun: str) -> list[str]:
     for v in names:
         if v not in known:
             raise click.BadParameter(f"unknown {noun} {v!r}; known: {', '.join(known)}", param_hint=name)
+    if twice := sorted({v for v in names if names.count(v) > 1}):
+        # the same trials run and tabled twice
+        raise click.BadParameter(f"{', '.join(twice)} given more than once", param_hint=name)
     return names
 
 

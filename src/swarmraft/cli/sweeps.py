@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
 import click
 import numpy as np
+from click.core import ParameterSource
 
 from swarmraft.cli.app import console, err_console, main, print_table, progress_bar
 from swarmraft.cli.options import (
@@ -212,6 +214,15 @@ def figure(kind, results, out, view, fps, every) -> None:
         for name, value in (("--fps", fps), ("--every", every)):
             if value is not None:
                 raise click.BadParameter("only for `swarmraft figure animation`", ctx, param_hint=name)
+    # an option the figure would not use is refused, not ignored
+    if kind not in ("recovery", "all") and ctx.get_parameter_source("view") != ParameterSource.DEFAULT:
+        raise click.BadParameter("only for `swarmraft figure recovery` (and all)", ctx, param_hint="--view")
+    if kind == "all" and out is not None:
+        raise click.BadParameter(
+            "names one file, and `all` writes three (into RESULTS/figures): draw one kind at a time",
+            ctx,
+            param_hint="--out",
+        )
     if kind == "animation":
         if out is not None:
             out = ImageFile(ANIMATION_SUFFIXES).convert(out, out_param, ctx)
@@ -526,6 +537,10 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
         raise click.BadParameter(
             f"expected numbers like 1,2,5, got {offsets!r}", param_hint="--offsets"
         ) from None
+    if not all(math.isfinite(v) and v >= 0 for v in offs):  # checked before any work, not by the attack
+        raise click.BadParameter(
+            f"offsets are distances, finite and >= 0 m: got {offsets!r}", param_hint="--offsets"
+        )
     config = build_config(preset, n=(n,), f=(f,), trials=trials, seed=seed)
     total = sum(len(THRESHOLDS[d][1]) + len(offs) for d in dets if d in THRESHOLDS)
     prog, start = progress_bar("curves", "points")

@@ -34,9 +34,9 @@ def _pct(v: float) -> str:
 SUMMARY_LEGEND = (
     "Errors in m, over the trials of each cell. base: the attacked drones' reports before "
     "verification; mean, sem, med, p99: the attacked drones after recovery (mean, its standard "
-    "error, median, 99th percentile); >1m: share of attacked drones still over 1 m off; hon: "
-    "honest drones after verification; det: attacked drones flagged; FP: honest drones flagged "
-    "(false positives)."
+    "error, median, 99th percentile); >1m: share of trials whose attacked drones' mean error "
+    "after recovery is over 1 m; hon: honest drones after verification; det: attacked drones "
+    "flagged; FP: honest drones flagged (false positives)."
 )
 
 

@@ -4,7 +4,7 @@ table, a summary and the numbers the figures need."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -165,6 +165,13 @@ def wrong_partition(log: MissionLog) -> np.ndarray:
     """(S,) bool: committed steps whose flags differ from the spoofed set among the judged
     drones (an honest drone flagged, or a spoofed one not flagged)."""
     return (judged(log) & (log.faulty != log.spoofed)).any(axis=1)
+
+
+def _stat(values: np.ndarray, f: Callable[[np.ndarray], float]) -> float | None:
+    """``f`` of the finite values, rounded to 0.01; None when there are none."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return round(float(f(v)), 2) if v.size else None
 
 
 def _mean(values: np.ndarray) -> float | None:
@@ -420,9 +427,10 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "detections": detections,
         "after_faults": _after_faults(log, errors, wrong),
         "outages": outages,
-        "latency_ms_median": round(float(np.nanmedian(log.latency_ms)), 2),
-        "latency_ms_p99": round(float(np.nanpercentile(log.latency_ms, 99)), 2),
-        "raft_messages_per_committed_step": round(raft_per, 2),
+        # None (JSON null) where no step committed: no latency to take a median of
+        "latency_ms_median": _stat(log.latency_ms, np.median),
+        "latency_ms_p99": _stat(log.latency_ms, lambda v: np.percentile(v, 99)),
+        "raft_messages_per_committed_step": None if not committed else round(raft_per, 2),
         "raft_minimum_per_step": per_step_min,
         "reports_per_step": round(float(log.report_messages.mean()), 2),
         "refused_proposals": log.refused_proposals,
@@ -532,6 +540,7 @@ def write_results(
     errors = error_series(log) if errors is None else errors
     summary = {**summarize(log, errors), **(extra or {})}
     write_rows(out / "steps.csv", step_columns(log), step_rows(log, errors))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    # strict JSON: a value that does not exist is null, never NaN (which parsers refuse)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "scenario.json").write_text(json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n")
     return MissionResult(log, errors, summary)

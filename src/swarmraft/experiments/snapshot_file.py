@@ -71,6 +71,13 @@ def _json_snapshot(path: Path, doc: Any) -> dict[str, Any]:
 
 
 def _csv_snapshot(path: Path, text: str) -> dict[str, Any]:
+    lines = list(csv.reader(text.splitlines()))
+    # a row of another length than the header: DictReader filled a short one with None (a
+    # missing range read as unmeasured) and keyed a long one's extra values by None
+    for i, row in enumerate(lines[1:], start=2):
+        if row and len(row) != len(lines[0]):
+            width = len(lines[0])
+            raise SnapshotFileError(f"{path}, line {i}: {len(row)} values where the header has {width}")
     rows = list(csv.DictReader(text.splitlines()))
     if not rows:
         raise SnapshotFileError(

@@ -314,3 +314,17 @@ def test_detector_parameters_checked_before_the_sweep_starts(cwd, param, needle)
 def test_an_option_that_cannot_apply_is_refused_before_any_work(cwd, args, needle):
     (cwd / "res").mkdir()
     fails_cleanly([*args, "--out", "o"] if args[0] != "figure" else args, needle, cwd)
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["sweep", "--n", "5"],
+        ["compare", "--n", "5"],
+        ["mission", "--scenario", "demo"],
+        ["curves", "--n", "9"],
+    ],
+)
+def test_a_negative_seed_is_the_options_error(cwd, command):
+    # the mission's was "demo.toml: seed: ...", blaming the shipped file for the option's value
+    fails_cleanly([*command, "--seed", "-1", "--out", "o"], "error: --seed: -1 is not in the range x>=0", cwd)

@@ -35,7 +35,9 @@ def noisy_swarm(geometry, n, f, T, seed):
     direction = rng.standard_normal((T, n, 3))
     direction /= np.linalg.norm(direction, axis=2, keepdims=True)
     rep = np.where(att[..., None], truth + direction * rng.uniform(10, 100, (T, n, 1)), rep)
-    ranges = true_distances(truth) + rng.normal(0, 0.1, (T, n, n))
+    # a range is a distance: >= 0, as the world's ranging model clips it (two drones of a 33-drone
+    # cube can be within the noise of each other)
+    ranges = np.maximum(true_distances(truth) + rng.normal(0, 0.1, (T, n, n)), 0.0)
     return truth, rep, ranges, att
 
 

@@ -523,7 +523,7 @@ def test_a_recorded_log_replayed_through_launch_flags_the_drones_the_simulator_f
 
     sim = run_mission(load_scenario(scenario))
     with (out / "records.csv").open() as f:  # one row per step (steps.csv has one per drone too)
-        rows = [r for r in csv.DictReader(f) if r["committed"] == "True"]
+        rows = [r for r in csv.DictReader(f) if r["committed"] == "1"]
     first = int(rows[0]["step"]) if rows else None
     assert first is not None and first < ATTACK_S * 10, (
         f"the swarm's first step was {first}, after the attacks"

@@ -21,7 +21,14 @@ from swarmraft.cli.tables import summary_table
     show_default=True,
     help="folder for everything the demo writes",
 )
-@click.option("--trials", type=click.IntRange(min=1), default=2000, show_default=True, help="trials per cell")
+@click.option(
+    "--trials",
+    type=click.IntRange(min=1),
+    default=2000,
+    show_default=True,
+    help="trials per cell of the reference sweep; the realistic sweep runs half as many, the "
+    "detector comparison an eighth",
+)
 @WORKERS
 @click.option(
     "--scenario",
@@ -57,7 +64,8 @@ def demo(out, trials, workers, scenario_file) -> None:
     with prog:
         result = run_and_write(sc, folder, start(sc.steps + 1, 0))
     print_mission_summary(result.summary)
-    written += [folder / "steps.csv", folder / "summary.json", *mission_figures(result, folder)]
+    written += [folder / name for name in ("steps.csv", "summary.json", "scenario.json")]
+    written += mission_figures(result, folder)
     for preset, config in configs.items():
         folder = out / preset
         heading(f"[bold]{preset} preset[/]: n = 2f+1, {config.trials} trials per cell -> {folder}")

@@ -236,7 +236,7 @@ def print_mission_summary(summary: dict) -> None:
     help="scenario TOML file, or the name of a shipped one: " + ", ".join(shipped_scenarios()),
 )
 @click.option("--out", type=OutFolder(), help="output folder [results/<name>]")
-@click.option("--seed", type=int, help="override the scenario's seed")
+@click.option("--seed", type=click.IntRange(min=0), help="override the scenario's seed")
 @click.option("--detector", help="override the scenario's detector")
 @click.option(
     "--json",

@@ -235,6 +235,7 @@ def launch(
             "relay_counters": run.relay_counters,
             "steps_with_records_differing": [r["step"] for r in g.rows if not r["identical"]],
             "interrupted": run.interrupted,
+            "sigkilled_at_end": run.unstoppable,
         }
     }
     result = write_results(log, out, extra)

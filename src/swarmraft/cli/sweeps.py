@@ -51,7 +51,7 @@ from swarmraft.cli.tables import (
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1 (as the paper).")
 @click.option("--trials", type=click.IntRange(min=1), help="trials per cell [default 10000]")
-@click.option("--seed", type=int, help="master seed [default 2025]")
+@click.option("--seed", type=click.IntRange(min=0), help="master seed [default 2025]")
 @click.option("--detector", help="registered detector name [default paper]")
 @click.option(
     "--param",
@@ -372,6 +372,10 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
 
     print_table(compare_table(table, title), to)
     written = [Path(out) / "compare.csv"]
+    # each (attack, detector)'s own sweep folder, OUT/<attack>/<detector>
+    for cells in sorted(Path(out).glob("*/*/cells.csv")):
+        files = (cells, cells.with_name("trials.csv"), cells.with_name("run.json"))
+        written += [p for p in files if p.exists()]
     for name in compare_figure_names(table):
         metric = name.removesuffix(".png")
         label, log, ref = COMPARE_METRICS[metric]
@@ -400,7 +404,7 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True, help="trials per cell")
-@click.option("--seed", type=int, help="master seed [default 2025]")
+@click.option("--seed", type=click.IntRange(min=0), help="master seed [default 2025]")
 @WORKERS
 @SCHEDULER
 @click.option(
@@ -472,7 +476,7 @@ def compare_cmd(
 @click.option(
     "--trials", type=click.IntRange(min=10), default=2000, show_default=True, help="honest snapshots"
 )
-@click.option("--seed", type=int, default=2025, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=2025, show_default=True)
 def calibrate(preset, n_text, trials, seed) -> None:
     """Calibrate tau and epsilon (mu_e + 3 sigma_e of honest residuals, paper III.E)."""
     from swarmraft.experiments import build_config
@@ -482,6 +486,15 @@ def calibrate(preset, n_text, trials, seed) -> None:
     config = build_config(preset, n=ns, seed=seed, calibration_trials=trials)
     rows = [(n, calibrate_cell(config, n)) for n in ns]
     print_table(calibration_table(rows, f"calibration, preset {preset}, {trials} honest snapshots"))
+    if not config.calibrate:  # the zeros above are right, and not what its sweeps use
+        from swarmraft.estimation import detector_params
+
+        p = detector_params(config.detector, **config.detector_params)
+        console.print(
+            f"preset {preset} does not calibrate (calibrate = false): its sweeps use the "
+            f"{config.detector} detector's tau {p.tau:g} m and epsilon {p.epsilon:g} m",
+            soft_wrap=True,
+        )
 
 
 @main.command()
@@ -514,7 +527,7 @@ def calibrate(preset, n_text, trials, seed) -> None:
     show_default=True,
     help="jump: the offset is a GNSS spoof's; enlarge: each attacker's distance enlargement, m",
 )
-@click.option("--seed", type=int, default=2025, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=2025, show_default=True)
 @click.option("--out", type=OutFolder(), default="results/curves", show_default=True)
 def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, attack, seed, out) -> None:
     """Detection curves per detector: ROC (detection against false-alarm rate as the

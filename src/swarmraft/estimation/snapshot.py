@@ -57,7 +57,8 @@ class Snapshot:
     gnss_sigma: optional (horizontal, vertical) GNSS sigma per axis, metres.
     gnss_common: optional (horizontal, vertical) sigma of a GNSS error common to all drones.
     range_sigma: optional ranging sigma, metres.
-    source: optional (n,) of "gnss", "ins" or "none": where each report came from.
+    source: optional (n,) of "gnss", "ins" or "none": where each report came from; checked
+        and kept for the caller, read by no detector (each weighs every report as a GNSS fix).
     prior: optional (n, 3) prior positions (previous verified position or INS), nan rows for
         none; with ``prior_sigma`` (m) it resolves the mirror ambiguity of 3 anchors.
     """

@@ -254,7 +254,8 @@ def gather_steps(nodes_dir: Path, n: int, steps: int, dt_s: float, out_csv: Path
         with Path(out_csv).open("w", newline="") as f:
             w = csv.DictWriter(f, STEP_COLUMNS)
             w.writeheader()
-            w.writerows(g.rows)
+            # booleans as 0/1, as every CSV file of the project writes them (docs/files.md)
+            w.writerows({k: int(v) if isinstance(v, bool) else v for k, v in r.items()} for r in g.rows)
     return g
 
 

@@ -47,6 +47,10 @@ def needs_relay(sc: Scenario) -> bool:
     )
 
 
+#: seconds the drones have, all together, to stop after launch's SIGTERM before a SIGKILL
+STOP_WAIT_S = 10.0
+
+
 @dataclass
 class Action:
     at_s: float  # after step 0
@@ -68,6 +72,7 @@ class LocalSwarm:
     say: Callable[[str], None] = print
     events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
+    unstoppable: list[int] = field(default_factory=list)  # drones SIGKILLed at the end
     interrupted: bool = False
     liar: int | None = None  # the drone told to lie (lying-leader fault)
 
@@ -245,11 +250,17 @@ class LocalSwarm:
         return out
 
     def stop(self) -> None:
+        """SIGTERM to every drone, then SIGKILL to those not stopped 10 s later (one deadline
+        for all, not 10 s each in turn: a hung swarm of 5 took 50 s), each said and listed
+        in ``unstoppable``."""
         for p in self.procs.values():
             p.terminate()
-        for p in self.procs.values():
-            if p.wait(10) is None:
+        deadline = time.monotonic() + STOP_WAIT_S
+        for d, p in self.procs.items():
+            if p.wait(max(0.0, deadline - time.monotonic())) is None and p.alive:
                 p.kill()
+                self.unstoppable.append(d)
+                self.say(f"warning: drone {d} did not stop within {STOP_WAIT_S:g} s of SIGTERM: SIGKILLed")
         if self.relay is not None:
             self.relay_counters = dict(self.relay.counters())
             self.relay.stop()

@@ -432,7 +432,9 @@ def test_non_finite_detector_parameters_are_refused(det, param):
 def test_non_finite_noise_parameters_are_refused(det):
     from swarmraft.estimation import detector_params
 
-    with pytest.raises(ValueError, match=f"{det}.gnss_sigma: must be finite"):
+    with pytest.raises(
+        ValueError, match=rf"{det}.gnss_sigma: expected \(horizontal, vertical\), both finite"
+    ):
         detector_params(det, gnss_sigma=(1.5, float("nan")))
 
 

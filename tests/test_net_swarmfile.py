@@ -105,3 +105,15 @@ def test_parse_address_refuses_names_and_allows_the_any_address_only_to_bind():
     assert parse_address("0.0.0.0:5", bind=True) == ("0.0.0.0", 5)
     with pytest.raises(ValueError):
         parse_address("0.0.0.0:5", bind=False)
+
+
+def test_a_missing_scenario_file_is_named_without_the_shipped_list(tmp_path):
+    from swarmraft.net.node import NodeConfigError, load_node_scenario
+
+    swarm = load_swarm(write(tmp_path, VALID.replace('scenario = "demo"', 'scenario = "nosuch.toml"')))
+    with pytest.raises(NodeConfigError) as err:
+        load_node_scenario(swarm)
+    assert str(err.value) == f"scenario: no file {tmp_path / 'nosuch.toml'} (the swarm file's scenario)"
+    swarm = load_swarm(write(tmp_path, VALID.replace('scenario = "demo"', 'scenario = "nosuch"')))
+    with pytest.raises(NodeConfigError, match="no shipped scenario of that name"):
+        load_node_scenario(swarm)

@@ -142,11 +142,14 @@ def detector_params(name: str, **params: Any) -> BaseModel:
     return model
 
 
-def verify_batch(batch: SnapshotBatch, detector: str = "paper", **params: Any) -> VerdictBatch:
+def verify_batch(
+    batch: SnapshotBatch, detector: str = "paper", check: bool = True, **params: Any
+) -> VerdictBatch:
     """Verify a batch with a registered detector, on ranges screened for bad links first
     where its parameters ask for it (`links.run_screened`). The batch is checked first
-    (`SnapshotBatch.checked`: a one-line ValueError for bad input)."""
-    return _verify_batch(batch.checked(), detector, **params)
+    (`SnapshotBatch.checked`: a one-line ValueError for bad input); ``check=False`` skips
+    it for a batch the caller built itself (a drone's step, from decoded reports)."""
+    return _verify_batch(batch.checked() if check else batch, detector, **params)
 
 
 def _verify_batch(batch: SnapshotBatch, detector: str, **params: Any) -> VerdictBatch:

@@ -93,6 +93,8 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
     """The swarm's scenario with its seed and step overrides; one-line NodeConfigError if bad."""
     path = find_scenario(swarm.scenario)
     if not path.is_file():
+        if swarm.scenario.endswith(".toml"):  # a file, never a shipped name: the list is beside the point
+            raise NodeConfigError(f"scenario: no file {path} (the swarm file's scenario)")
         raise NodeConfigError(
             f"scenario: no file {path} and no shipped scenario of that name "
             f"(shipped: {', '.join(shipped_scenarios())})"

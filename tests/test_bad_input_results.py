@@ -273,3 +273,19 @@ def test_cells_csv_of_another_detector_than_run_json_is_named(ref):
         "ref/cells.csv, line 2, column detector: 'joint' where run.json's config has 'paper'",
         ref.parent,
     )
+
+
+def test_check_on_a_mission_or_comparison_folder_says_what_it_is(tmp_path, monkeypatch):
+    """It told the user to run a sweep into their mission folder."""
+    from swarmraft.experiments.mission_folder import FILES
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m").mkdir()
+    for name in FILES:
+        (tmp_path / "m" / name).write_text("{}")
+    fails_cleanly(["check", "m"], "error: m: a mission folder, not a sweep's (no cells.csv)", tmp_path)
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "compare.csv").write_text("x\n")
+    fails_cleanly(
+        ["check", "c"], "c: a compare folder, not a sweep's (no cells.csv) (its sweeps are in", tmp_path
+    )

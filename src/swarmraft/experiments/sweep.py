@@ -124,7 +124,7 @@ def read_run(folder: Path) -> dict[str, Any]:
     except FileNotFoundError:
         raise ConfigError(f"{path}: missing (every sweep writes one)") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid JSON ({exc}); remove it or use another --out") from None
+        raise ConfigError(f"{path}: not valid JSON ({exc}); no sweep can resume this folder") from None
     if not isinstance(run, dict) or not isinstance(run.get("config"), dict):
         raise ConfigError(f"{path}: no 'config' object; not a run.json this program wrote")
     try:
@@ -140,6 +140,12 @@ def load_results(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndar
     folder has no trials.csv."""
     folder = Path(folder)
     if not (folder / "cells.csv").exists():
+        from swarmraft.experiments.results_folder import folder_kind
+
+        kind = folder_kind(folder)
+        if kind is not None:  # not to be told to sweep into a mission's or comparison's folder
+            where = " (its sweeps are in <attack>/<detector>)" if kind == "compare" else ""
+            raise ConfigError(f"{folder}: a {kind} folder, not a sweep's (no cells.csv){where}")
         raise ConfigError(f"{folder}: no cells.csv here; run `swarmraft sweep --out {folder}` first")
     run = read_run(folder)
     cells = read_table(folder / "cells.csv", CELL_COLUMNS, CELL_TEXT_COLUMNS)

@@ -272,9 +272,11 @@ def recovery(
                             f"{err_all[i]:.3g} m" + ("" if flagged[i] else ", not flagged"),
                             ver[i, list(plane)],
                             textcoords="offset points",
-                            xytext=(10, -12),
+                            xytext=(14, -14),  # beside the 420-point ring, not under it
                             fontsize=8,
                             color="red",
+                            zorder=5,  # above the markers (a label under one read "1?2 m")
+                            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
                         )
             ax.set_xlabel(f"{names[plane[0]]} (m)")
             ax.set_ylabel(f"{names[plane[1]]} (m)")

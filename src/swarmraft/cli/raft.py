@@ -11,6 +11,7 @@ from swarmraft.cli.app import (
     console,
     main,
     print_table,
+    print_wrapped,
     progress_bar,
 )
 from swarmraft.sim.invariants import INVARIANTS
@@ -148,7 +149,7 @@ def raft_fuzz(
                 failed.append(r)
                 prog.console.print(f"[red]FAIL[/] seed {r.seed} ({r.invariant}): {r.error}")
             advance(1)
-    console.print(
+    print_wrapped(
         f"{seeds} seeds ({seed_start}..{seed_start + seeds - 1}), {fault_ms:.0f} ms of faults each, "
         f"{events} events checked, logs up to {longest} entries, {changes} configuration changes, "
         f"{reads} reads answered, {time.perf_counter() - t0:.0f} s: "

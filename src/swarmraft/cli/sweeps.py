@@ -11,7 +11,7 @@ import click
 import numpy as np
 from click.core import ParameterSource
 
-from swarmraft.cli.app import console, err_console, main, print_table, progress_bar
+from swarmraft.cli.app import console, err_console, main, print_table, print_wrapped, progress_bar
 from swarmraft.cli.options import (
     ATTACK_NAMES,
     PRESET,
@@ -574,10 +574,12 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
 @main.command()
 def detectors() -> None:
     """List the registered detectors and their parameters."""
+    from rich.markup import escape
+
     from swarmraft.estimation import detector_names, get_detector
 
     for name in detector_names():
         det = get_detector(name)
-        console.print(f"[bold]{name}[/]: {det.summary}")
+        print_wrapped(f"[bold]{name}[/]: {escape(det.summary)}")
         for field, info in det.params.model_fields.items():
-            console.print(f"    {field} = {info.default!r}  {info.description or ''}")
+            print_wrapped(escape(f"{field} = {info.default!r}  {info.description or ''}"), 4)

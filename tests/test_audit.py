@@ -498,3 +498,33 @@ def test_the_record_memo_returns_what_compute_record_would_for_every_change_of_i
         assert got.encode() == want.encode()
     assert memo.hits == 1
     assert len({first.encode(), *(compute_record(*a).encode() for a in variants[1:2] + variants[3:])}) > 2
+
+
+@pytest.mark.parametrize(
+    ("change", "why"),
+    [
+        ({"position": np.array([np.nan, 0.0, 0.0])}, "position is not 3 finite numbers"),
+        ({"ranges": np.full(3, 10.0)}, "3 ranges in a swarm of 9"),
+        ({"ranges": np.r_[np.inf, np.full(N - 1, 10.0)]}, "a range that is not a finite distance >= 0"),
+        ({"ranges": np.r_[-50.0, np.full(N - 1, 10.0)]}, "a range that is not a finite distance >= 0"),
+    ],
+)
+def test_a_malformed_signed_report_is_kept_by_no_one(change, why) -> None:
+    """A compromised drone signs what it likes: a nan position, a short range row or an
+    infinite range, signed, raised inside the leader's detector and stopped its step. The
+    leader keeps no such report (the step goes on without that drone), a voter holds none at
+    the fan-out, and a record that carries one is refused."""
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    bad = keys.sign(replace(rec.reports[4], signature=b"", **change))
+    assert bad.malformed(N) == why and keys.verify(bad)  # signed: only its content is wrong
+    w, _, _ = honest_chain()
+    leader = SwarmDrone(0, w.protocol, keys, audit=True)
+    assert not leader.receive(bad) and leader.rejected == 1
+    assert not v.audit.note_report(bad)
+    reports = {q.drone: q for q in rec.reports}
+    prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
+    honest = replace(compute_record(12, 1, reports, prior, v.config), leader=rec.leader)
+    carried = tuple(bad if q.drone == 4 else q for q in honest.reports)
+    got, reason = v.audit.check(resealed(replace(honest, reports=carried), keys), 1)
+    assert got is None and reason == f"drone 5's report: {why}"

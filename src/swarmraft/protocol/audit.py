@@ -202,7 +202,9 @@ class Auditor:
         for r in rec.reports:
             if r.step != rec.step:
                 return f"drone {r.drone + 1}'s report is for step {r.step}"
-            if len(r.ranges) != c.n or not keys.verify(r):
+            if (why := r.malformed(c.n)) is not None:  # an honest leader keeps none such
+                return f"drone {r.drone + 1}'s report: {why}"
+            if not keys.verify(r):
                 return f"drone {r.drone + 1}'s report signature"
         prior = None
         if rec.prior_step >= 0:
@@ -253,13 +255,17 @@ class Auditor:
     def _note(self, step: int, drone: int, data: bytes | None, report) -> bool:  # noqa: ANN001
         if step in self.closed or drone in self.timely.get(step, ()):
             return False
+
+        def good(r: Report) -> bool:  # as the leader keeps it (`SwarmDrone.receive`)
+            return r.malformed(self.drone.config.n) is None and self.drone.keys.verify(r)
+
         if self.cache is not None and data is not None:
             key = b"report" + record_digest(data)  # one bytes object per fanned-out report
             if key not in self.cache:
-                self.cache[key] = self.drone.keys.verify(report())
+                self.cache[key] = good(report())
             ok = self.cache[key]
         else:
-            ok = self.drone.keys.verify(report())
+            ok = good(report())
         if not ok:
             return False
         self.timely.setdefault(step, set()).add(drone)

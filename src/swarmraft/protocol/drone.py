@@ -235,7 +235,11 @@ class SwarmDrone:
         drone is alive, but the step is not verified again (`verify_step`)."""
         if report.drone in self.inbox.get(report.step, {}):
             return True  # a resend of a report already verified and kept
-        if report.step <= self.state.last_step or not self.keys.verify(report):
+        if (
+            report.step <= self.state.last_step
+            or report.malformed(self.config.n) is not None
+            or not self.keys.verify(report)
+        ):
             self.rejected += report.step > self.state.last_step
             return False
         self.inbox.setdefault(report.step, {})[report.drone] = report

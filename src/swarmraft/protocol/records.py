@@ -45,6 +45,27 @@ class Report:
     drift: np.ndarray | None = None
     ins: np.ndarray | None = None
 
+    def malformed(self, n: int) -> str | None:
+        """Why this report cannot be a drone's honest reading in a swarm of n (None: it can):
+        a position not 3 finite numbers, ranges not n values each nan or a finite distance
+        >= 0, an innovation, drift window or INS track with an infinite value. A signature
+        does not make it so: a compromised drone signs what it likes, and one nan position
+        or a short range row raised inside the leader's detector (a LinAlgError, a broadcast
+        error) and stopped its step."""
+        pos = np.asarray(self.position, float)
+        if pos.shape != (3,) or not np.isfinite(pos).all():
+            return "position is not 3 finite numbers"
+        rng = np.asarray(self.ranges, float)
+        if rng.shape != (n,):
+            return f"{rng.size} ranges in a swarm of {n}"
+        if np.isinf(rng).any() or (rng[~np.isnan(rng)] < 0).any():
+            return "a range that is not a finite distance >= 0"
+        for name in ("innovation", "drift", "ins"):
+            value = getattr(self, name)
+            if value is not None and np.isinf(np.asarray(value, float)).any():
+                return f"an infinite {name}"
+        return None
+
     def body(self) -> bytes:
         """The signed bytes, encoded on the first call and kept: a report is a value (its
         arrays are not changed once it is made; `dataclasses.replace` makes a new one). A

@@ -324,8 +324,8 @@ def compare(
     its 95 % interval (1.96 standard errors, from the table's ``<metric>_sem`` column, or
     ``recovered_sem`` for ``recovered_mean``), detectors side by side within a cell and no
     line joining cells. The axis is linear from 0; when ``log`` allows it and the values span
-    more than two decades it is logarithmic (dots only, no bars). ``reference`` draws a
-    horizontal line (e.g. efficiency 1)."""
+    more than two decades it is logarithmic (dots only, no bars); a rate's interval is cut
+    at 0 and 1. ``reference`` draws a horizontal line (e.g. efficiency 1)."""
     attacks = list(dict.fromkeys(np.asarray(table["attack"]).tolist()))
     detectors = list(dict.fromkeys(np.asarray(table["detector"]).tolist()))
     values = np.asarray(table[metric], float)
@@ -363,6 +363,10 @@ def compare(
                 ys = np.where(ys > 0, ys, np.nan)
                 lower = np.where(np.isfinite(es), np.minimum(es, ys * 0.999), 0.0)
                 yerr = np.vstack([lower, np.nan_to_num(es)])
+            elif metric.endswith("_rate"):
+                # a rate's interval stays within [0, 1] (1.96 standard errors ran past 1)
+                e = np.nan_to_num(es)
+                yerr = np.vstack([np.minimum(e, np.nan_to_num(ys)), np.minimum(e, 1.0 - np.nan_to_num(ys))])
             else:
                 yerr = np.nan_to_num(es)
             off = (k - (len(detectors) - 1) / 2) * width / len(detectors)

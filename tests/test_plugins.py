@@ -15,6 +15,7 @@ from pydantic import BaseModel
 from swarmraft.cli import main
 from swarmraft.estimation import Snapshot, register, verify
 from swarmraft.estimation import registry as reg
+from swarmraft.experiments import config as cfg
 from swarmraft.experiments.sweep import code_hash
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
@@ -22,13 +23,17 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
 
 @pytest.fixture
 def clean_registry(monkeypatch):
-    """The registry, the plugins' loaded flag and the example's module as they were after."""
+    """The registries, the plugins' loaded groups and the examples' modules as they were after."""
     monkeypatch.setattr(reg, "_REGISTRY", dict(reg._REGISTRY))
-    monkeypatch.setattr(reg, "_plugins_loaded", False)
+    monkeypatch.setattr(reg, "_plugins_loaded", set())
+    monkeypatch.setattr(cfg, "_ATTACK_PLUGINS", dict(cfg._ATTACK_PLUGINS))
     monkeypatch.syspath_prepend(str(EXAMPLES))
-    monkeypatch.delitem(sys.modules, "noisy_vote", raising=False)
+    for name in ("noisy_vote", "common_shift"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
     yield
-    sys.modules.pop("noisy_vote", None)
+    for name in ("noisy_vote", "common_shift"):
+        sys.modules.pop(name, None)
+    code_hash.cache_clear()
 
 
 def snapshot(spoof: float) -> tuple[Snapshot, np.ndarray]:
@@ -117,3 +122,74 @@ def test_the_docs_example_prints_what_it_says(clean_registry, monkeypatch, capsy
     exec(compile(code, "detectors.md", "exec"), {})
     said = code.strip().splitlines()[-1].split("# ", 1)[1]
     assert capsys.readouterr().out.strip() == said
+
+
+def entry_points_with(monkeypatch, group: str, *eps: tuple[str, str]) -> None:
+    """importlib.metadata.entry_points as if a package declared ``eps`` in ``group``."""
+    found = importlib.metadata.EntryPoints(
+        importlib.metadata.EntryPoint(name=n, value=v, group=group) for n, v in eps
+    )
+    real = importlib.metadata.entry_points
+    monkeypatch.setattr(
+        importlib.metadata, "entry_points", lambda **kw: found if kw.get("group") == group else real(**kw)
+    )
+
+
+def test_an_attack_from_outside_runs_in_a_sweep_and_from_the_command_line(
+    clean_registry, monkeypatch, tmp_path
+):
+    """docs/examples/common_shift.py through an entry point: the command line knows it, a
+    sweep and a comparison run it (every attacker shifted by one offset, which joint flags),
+    and its source counts in the code hash."""
+    entry_points_with(monkeypatch, cfg.ATTACK_PLUGIN_GROUP, ("common_shift", "common_shift"))
+    out = tmp_path / "o"
+    args = ["sweep", "--preset", "realistic", "--detector", "joint", "--attack", "common-shift"]
+    r = CliRunner().invoke(
+        main, [*args, "--n", "9", "--f", "2", "--trials", "40", "--workers", "1", "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    from swarmraft.experiments.sweep import load_results
+
+    cells, trials, run = load_results(out)
+    assert run["config"]["attack"]["name"] == "common-shift"
+    assert cells["detection_rate"][0] > 0.9  # shifts of 10-100 m: found
+    shifted = np.asarray(trials["baseline"], float)
+    assert np.median(shifted) > 10.0  # the reports did move
+    assert code_hash("joint", "common-shift") != code_hash("joint", "jump")
+    cmp = tmp_path / "c"
+    r = CliRunner().invoke(
+        main,
+        ["compare", "--attacks", "jump,common-shift", "--detectors", "joint", "--n", "9", "--f", "2"]
+        + ["--trials", "20", "--workers", "1", "--out", str(cmp)],
+    )
+    assert r.exit_code == 0, r.output
+    assert (cmp / "common-shift" / "joint" / "cells.csv").exists()
+
+
+def test_the_attack_docs_example_prints_what_it_says(clean_registry, monkeypatch, capsys, tmp_path):
+    text = (EXAMPLES.parent / "models.md").read_text()
+    code = text.split("### Writing an attack", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(EXAMPLES.parents[1])
+    code = code.replace('"results/common-shift"', repr(str(tmp_path / "cs")))  # not into the clone
+    exec(compile(code, "models.md", "exec"), {})
+    said = code.strip().splitlines()[-1].split("# ", 1)[1]
+    assert capsys.readouterr().out.strip().splitlines()[-1] == said
+
+
+def test_an_attack_is_checked_by_name_and_result(clean_registry):
+    with pytest.raises(ValueError, match="is built in"):
+        cfg.register_attack("jump")
+    from swarmraft.experiments import build_config
+
+    with pytest.raises(Exception, match="unknown attack 'teleport'; known: jump"):
+        build_config("realistic", attack={"name": "teleport"})
+
+    @cfg.register_attack("broken")
+    def broken(config):  # noqa: ANN001, ANN202
+        return "not an attack"
+
+    c = build_config("realistic", attack={"name": "broken"})
+    with pytest.raises(ValueError, match="attack 'broken': its function returned str, not an Attack"):
+        c.attack.model()
+    with pytest.raises(ValueError, match="the built-in attack 'jump' takes none"):
+        build_config("realistic", attack={"name": "jump", "params": {"x": 1}}).attack.model()

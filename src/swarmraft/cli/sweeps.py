@@ -62,8 +62,7 @@ from swarmraft.cli.tables import (
 )
 @click.option(
     "--attack",
-    type=click.Choice(ATTACK_NAMES),
-    help="attack [default jump]",
+    help=f"attack [default jump]: {', '.join(ATTACK_NAMES)}, or one registered (docs/models.md)",
 )
 @click.option(
     "--known-set",
@@ -398,7 +397,10 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
     help="comma-separated registered detectors",
 )
 @click.option(
-    "--attacks", default="jump", show_default=True, help=f"comma-separated attacks: {', '.join(ATTACK_NAMES)}"
+    "--attacks",
+    default="jump",
+    show_default=True,
+    help=f"comma-separated attacks: {', '.join(ATTACK_NAMES)}, or registered ones",
 )
 @click.option("--n", "n_text", default="9,13,17", show_default=True, help="swarm sizes")
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
@@ -445,7 +447,9 @@ def compare_cmd(
     from swarmraft.experiments.compare import run_compare
 
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
-    atks = name_list(attacks, "--attacks", ATTACK_NAMES, "attack")
+    from swarmraft.experiments.config import attack_names
+
+    atks = name_list(attacks, "--attacks", attack_names(), "attack")
     config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
     out = out or Path("results") / f"compare-{config.preset}"
     say = err_console if as_json else console

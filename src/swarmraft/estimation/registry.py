@@ -43,7 +43,7 @@ _REGISTRY: dict[str, Detector] = {}
 
 
 PLUGIN_GROUP = "swarmraft.detectors"
-_plugins_loaded = False
+_plugins_loaded: set[str] = set()  # the entry-point groups imported in this process
 
 
 def register(name: str, params: type[BaseModel], summary: str) -> Callable[[DetectorFn], DetectorFn]:
@@ -62,9 +62,7 @@ def register(name: str, params: type[BaseModel], summary: str) -> Callable[[Dete
 
     def wrap(fn: DetectorFn) -> DetectorFn:
         old = _REGISTRY.get(name)
-        # the same function registered again (its module imported twice, as a script's
-        # __main__ and by name) is no conflict; another function under the name is
-        if old is not None and (old.run.__module__, old.run.__qualname__) != (fn.__module__, fn.__qualname__):
+        if old is not None and not same_function(old.run, fn):
             raise ValueError(f"detector {name!r} is already registered (by {old.run.__module__})")
         _REGISTRY[name] = Detector(name=name, run=fn, params=params, summary=summary)
         return fn
@@ -72,28 +70,34 @@ def register(name: str, params: type[BaseModel], summary: str) -> Callable[[Dete
     return wrap
 
 
-def _load_plugins() -> None:
-    """Import every module of the entry-point group ``swarmraft.detectors`` once; a plugin
-    that fails to import is a one-line ValueError naming it."""
-    global _plugins_loaded
-    if _plugins_loaded:
+def load_plugins(group: str = PLUGIN_GROUP, what: str = "detector") -> None:
+    """Import every module of the entry-point group ``group`` once per process (each module
+    registers what it holds when imported: ``swarmraft.detectors``, ``swarmraft.attacks``); a
+    plugin that fails to import is a one-line ValueError naming it."""
+    if group in _plugins_loaded:
         return
-    _plugins_loaded = True
-    for ep in importlib.metadata.entry_points(group=PLUGIN_GROUP):
+    _plugins_loaded.add(group)
+    for ep in importlib.metadata.entry_points(group=group):
         try:
             ep.load()
         except Exception as exc:  # noqa: BLE001 - any import error of a plugin is reported as its own
-            raise ValueError(f"detector plugin {ep.name} ({ep.value}): {type(exc).__name__}: {exc}") from None
+            raise ValueError(f"{what} plugin {ep.name} ({ep.value}): {type(exc).__name__}: {exc}") from None
+
+
+def same_function(a: Callable, b: Callable) -> bool:
+    """Whether two registered functions are one (a module imported twice, as a script's
+    __main__ and by name, registers it twice: no conflict)."""
+    return (a.__module__, a.__qualname__) == (b.__module__, b.__qualname__)
 
 
 def detector_names() -> list[str]:
-    _load_plugins()
+    load_plugins()
     return sorted(_REGISTRY)
 
 
 def get_detector(name: str) -> Detector:
     if name not in _REGISTRY:
-        _load_plugins()
+        load_plugins()
     try:
         return _REGISTRY[name]
     except KeyError:

@@ -6,13 +6,22 @@ Bad input is a one-line ``ConfigError`` naming the field (``gnss.sigma_h: ...``)
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from swarmraft.estimation.integrity import IntegrityParams, resolve_f_max
-from swarmraft.estimation.registry import check_known_set, detector_params, get_detector, one_line
+from swarmraft.estimation.registry import (
+    check_known_set,
+    detector_params,
+    get_detector,
+    load_plugins,
+    one_line,
+    same_function,
+)
 from swarmraft.world import (
     AreaSpoof,
     Attack,
@@ -27,6 +36,7 @@ from swarmraft.world import (
 )
 
 PRESETS = ("reference", "realistic")
+#: the built-in attacks; more register with `register_attack` (docs/models.md, "Writing an attack")
 ATTACKS = (
     "jump",
     "range-tamper",
@@ -89,6 +99,54 @@ class RangingConfig(_Strict):
         return {"exact": 0.0, "uwb": self.sigma}.get(self.kind)
 
 
+ATTACK_PLUGIN_GROUP = "swarmraft.attacks"
+
+
+@dataclass(frozen=True)
+class AttackPlugin:
+    """A registered attack: ``make(config) -> Attack`` from the sweep's `AttackConfig` (its
+    fields, and ``params`` for the attack's own settings), and how many honest drones it
+    needs (a collusion's pivots)."""
+
+    make: Callable[[AttackConfig], Attack]
+    min_honest: int
+
+
+_ATTACK_PLUGINS: dict[str, AttackPlugin] = {}
+
+
+def register_attack(name: str, min_honest: int = 0) -> Callable[[Callable], Callable]:
+    """Decorator: a function ``(AttackConfig) -> world.Attack`` becomes the attack ``name`` of
+    every sweep, comparison and ``--attack``; its source counts in a sweep's code hash.
+    From Python once its module is imported, from the command line and a sweep's workers
+    through the entry-point group ``swarmraft.attacks``."""
+    if name in ATTACKS:
+        raise ValueError(f"attack {name!r} is built in")
+
+    def wrap(make: Callable) -> Callable:
+        old = _ATTACK_PLUGINS.get(name)
+        if old is not None and not same_function(old.make, make):
+            raise ValueError(f"attack {name!r} is already registered (by {old.make.__module__})")
+        _ATTACK_PLUGINS[name] = AttackPlugin(make, min_honest)
+        return make
+
+    return wrap
+
+
+def attack_plugin(name: str) -> AttackPlugin | None:
+    """The registered attack ``name`` (None for a built-in one), loading the plugins first."""
+    if name in ATTACKS:
+        return None
+    load_plugins(ATTACK_PLUGIN_GROUP, "attack")
+    return _ATTACK_PLUGINS.get(name)
+
+
+def attack_names() -> list[str]:
+    """The built-in attacks, then the registered ones."""
+    load_plugins(ATTACK_PLUGIN_GROUP, "attack")
+    return [*ATTACKS, *sorted(_ATTACK_PLUGINS)]
+
+
 class AttackConfig(_Strict):
     """Which attack and its parameters. ``jump``: independent jumps (``box`` half width or
     ``shell`` low-high magnitude); ``range-tamper``: jumps plus ranges consistent with the
@@ -98,7 +156,7 @@ class AttackConfig(_Strict):
     ``enlarge``: distance enlargement of ``enlarge_low``-``enlarge_high`` m per attacker (every
     range it takes part in reads long), its GNSS honest; ``enlarge-jump``: the same plus jumps."""
 
-    name: Literal[ATTACKS] = "jump"  # type: ignore[valid-type]
+    name: str = "jump"
     jump: Literal["box", "shell"] = "box"
     half_width: float = Field(30.0, ge=0)
     low: float = Field(10.0, ge=0)
@@ -108,6 +166,14 @@ class AttackConfig(_Strict):
     min_move: float = Field(0.0, ge=0, description="collusion-k: every attacker moved at least this far, m")
     enlarge_low: float = Field(2.0, ge=0, description="distance enlargement per attacker, low end, m")
     enlarge_high: float = Field(10.0, ge=0, description="distance enlargement per attacker, high end, m")
+    params: dict[str, Any] = Field(default_factory=dict, description="a registered attack's own settings")
+
+    @field_validator("name")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        if name not in ATTACKS and attack_plugin(name) is None:
+            raise ValueError(f"unknown attack {name!r}; known: {', '.join(attack_names())}")
+        return name
 
     @model_validator(mode="after")
     def _order(self) -> AttackConfig:
@@ -118,6 +184,16 @@ class AttackConfig(_Strict):
         return self
 
     def model(self) -> Attack:
+        plugin = attack_plugin(self.name)
+        if plugin is not None:
+            attack = plugin.make(self)
+            if not isinstance(attack, Attack):
+                raise ValueError(
+                    f"attack {self.name!r}: its function returned {type(attack).__name__}, not an Attack"
+                )
+            return attack
+        if self.params:
+            raise ValueError(f"attack.params: the built-in attack {self.name!r} takes none")
         jump = Jump(self.jump, self.half_width, self.low, self.high)
         if self.name == "jump":
             return Attack(jump)
@@ -134,6 +210,9 @@ class AttackConfig(_Strict):
 
     @property
     def min_honest(self) -> int:
+        plugin = attack_plugin(self.name)
+        if plugin is not None:
+            return plugin.min_honest
         return int(self.name[-1]) if self.name.startswith("collusion") else 0
 
 

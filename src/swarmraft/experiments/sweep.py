@@ -32,7 +32,7 @@ from swarmraft import __version__
 from swarmraft.estimation.registry import get_detector, one_line
 from swarmraft.estimation.trust_region import warm_up
 from swarmraft.experiments.calibration import detector_settings
-from swarmraft.experiments.config import PRESETS, ConfigError, SweepConfig
+from swarmraft.experiments.config import PRESETS, ConfigError, SweepConfig, attack_plugin
 from swarmraft.experiments.executors import check_executor, make_executor
 from swarmraft.experiments.metrics import (
     CELL_COLUMNS,
@@ -83,19 +83,22 @@ def config_hash(config: SweepConfig) -> str:
 
 
 @functools.cache
-def code_hash(detector: str | None = None) -> str:
+def code_hash(detector: str | None = None, attack: str | None = None) -> str:
     """sha256 of the package's source files: which code made a cell (a resume with other
-    code would mix two versions' numbers in one table). With ``detector``, also the source
-    file of a detector registered from outside the package (a plugin or a script's own),
-    whose changes would otherwise pass unseen."""
+    code would mix two versions' numbers in one table). With ``detector`` and ``attack``,
+    also the source files of a detector or attack registered from outside the package (a
+    plugin or a script's own), whose changes would otherwise pass unseen."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         h.update(str(path.relative_to(root)).encode())
         h.update(path.read_bytes())
-    source = inspect.getsourcefile(get_detector(detector).run) if detector else None
-    if source and not Path(source).resolve().is_relative_to(root):
-        h.update(Path(source).read_bytes())
+    plugin = attack_plugin(attack) if attack else None
+    functions = [get_detector(detector).run if detector else None, plugin.make if plugin else None]
+    for fn in functions:
+        source = inspect.getsourcefile(fn) if fn else None
+        if source and not Path(source).resolve().is_relative_to(root):
+            h.update(Path(source).read_bytes())
     return h.hexdigest()
 
 
@@ -262,7 +265,7 @@ def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:
             raise ConfigError(
                 f"{meta_path}: not valid JSON ({exc}); remove the cell or use another --out"
             ) from None
-        now = code_hash(config.detector)
+        now = code_hash(config.detector, config.attack.name)
         if meta.get("code_sha256", now) != now:
             raise ConfigError(
                 f"--out {out}: {csv_path.name} was made by other code (source "
@@ -345,7 +348,7 @@ def run_sweep(
     meta = {
         "seed": config.seed,
         "config_sha256": config_hash(config),
-        "code_sha256": code_hash(config.detector),
+        "code_sha256": code_hash(config.detector, config.attack.name),
     }
     if tasks:
         warm_up()

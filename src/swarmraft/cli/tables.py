@@ -195,7 +195,8 @@ def status_table(answers: Mapping[int, object]) -> tuple[Table, str]:
             str(f["applied"]),
             str(f["last_index"]),
             str(f["last_step"]),
-            f"{f['step_now']}/{f['steps']}",
+            # before step 0 the clock's step is negative: say how far off step 0 is instead
+            f"{f['step_now']}/{f['steps']}" if f["step_now"] >= 0 else f"starts in {-f['step_now']} steps",
             f"{f['reachable_peers']}/{len(f['peers'])}",
             quorum,
             dropped,

@@ -20,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 
 def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str) -> None:
@@ -32,7 +33,11 @@ def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str) -> None:
         # counts from 1 to at least 10 on the colour bar (a bar of one value has no scale)
         top = max(10.0, float(np.histogram2d(p, e, bins=[bins, bins])[0].max()))
         h = ax.hist2d(p, e, bins=[bins, bins], norm=LogNorm(vmin=1, vmax=top), cmap="viridis")
-        plt.colorbar(h[3], ax=ax, label="verdicts per cell")
+        bar = plt.colorbar(h[3], ax=ax, label="verdicts per cell")
+        counts = FuncFormatter(lambda v, _: f"{v:g}")  # counts as numbers, not 2x10^0
+        bar.ax.yaxis.set_major_formatter(counts)
+        if top <= 10:  # one decade: its minor ticks are the labels there are (more would crowd)
+            bar.ax.yaxis.set_minor_formatter(counts)
     ax.plot([lo, hi], [lo, hi], color="black", lw=1)
     ax.fill_between([lo, hi], [lo, hi], [hi, hi], color="tab:red", alpha=0.12, lw=0)
     ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi))

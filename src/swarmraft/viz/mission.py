@@ -414,11 +414,17 @@ def consensus_latency(
     skipped = ~np.isfinite(latency_ms)
     if skipped.any():
         a1.plot(t[skipped], np.zeros(skipped.sum()), "x", color="tab:red", ms=4, label="skipped step")
-        a1.legend(loc="upper left")
+        # outside the axes: inside, the box hid the points under it
+        a1.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=8, frameon=False)
     a1.set_xlabel("time, s")
     a1.set_ylabel("step start to commit, ms")
     a1.grid(True, ls=":", alpha=0.5)
-    a2.hist(latency_ms[np.isfinite(latency_ms)], bins=40, orientation="horizontal", color="tab:blue")
+    done = latency_ms[np.isfinite(latency_ms)]
+    a2.hist(done, bins=40, orientation="horizontal", color="tab:blue")
+    if not done.size:  # an empty histogram would say nothing
+        a2.text(0.5, 0.5, "no step committed", transform=a2.transAxes, ha="center", color="tab:red")
+        a2.set_xticks([])
+        a2.set_yticks([])
     a2.set_xlabel("steps")
     a2.grid(True, ls=":", alpha=0.5)
     fig.suptitle("Consensus latency", fontsize=11)

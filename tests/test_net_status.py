@@ -139,3 +139,19 @@ def test_status_refuses_a_bad_swarm_file_with_one_line(tmp_path):
     done = status_cli(bad)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert done.stderr.startswith(f"error: --swarm: {bad}")
+
+
+def test_status_refuses_a_keys_file_without_every_drone(tmp_path):
+    """As a node does: a swarm-keys file missing a drone (status only said 'no answer')."""
+    import time as _time
+
+    from swarmraft.net.launch import prepare_swarm
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text('name = "s"\ndrones = 4\nduration_s = 2\n')
+    path, swarm = prepare_swarm(tmp_path / "run", scenario, 4, _time.time())
+    keys = swarm.public_keys
+    keys.write_text("\n".join(ln for ln in keys.read_text().splitlines() if not ln.startswith("4 ")) + "\n")
+    done = status_cli(path)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"{keys}: no public key for drone 4" in " ".join(done.stderr.split())

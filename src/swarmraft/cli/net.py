@@ -311,6 +311,10 @@ def status(swarm_path: Path, timeout: float, as_json: bool) -> None:
         publics = load_public_keys(swarm.public_keys)
     except (SwarmFileError, KeyFileError) as exc:
         raise click.BadParameter(str(exc), param_hint="--swarm") from None
+    if missing := sorted(set(swarm.drones) - set(publics)):  # as a node refuses it
+        raise click.BadParameter(
+            f"{swarm.public_keys}: no public key for drone {missing[0]}", param_hint="--swarm"
+        )
     answers = ask(swarm, publics, timeout)
     if as_json:
         out = {str(i): a.fields or {"problem": a.problem} for i, a in answers.items()}

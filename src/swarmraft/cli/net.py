@@ -248,7 +248,9 @@ def launch(
             f"[red]warning[/]: {len(late)} of {n} drone processes were not up at step 0"
             + (f" (the last {worst:.1f} s after it)" if worst is not None else "")
             + (f"; never up: {', '.join(map(str, never))}" if never else "")
-            + "; the steps before a quorum was up are skipped: give a longer --start-delay",
+            + "; the steps before a quorum was up are skipped: give a longer --start-delay"
+            # a value to try: this run's delay plus the lateness seen, and 2 s to spare
+            + (f" (here now: about {run.start_delay_s + worst + 2:.0f})" if worst is not None else ""),
             soft_wrap=True,
         )
     skipped = len(g.rows) - g.committed

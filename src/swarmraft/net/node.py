@@ -70,7 +70,7 @@ from swarmraft.raft import (
     Snapshot,
     SQLiteStorage,
 )
-from swarmraft.sim.lying import drops_report, falsify
+from swarmraft.sim.lying import drops_report, falsify, move_offset
 from swarmraft.sim.mission import MISSION_SNAPSHOTS
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.sim.sensing import ScenarioWorld
@@ -964,7 +964,7 @@ class DroneHost:
                 "compromised",
                 mode=f.mode,
                 drone=f.drone,
-                offset_m=f.offset_m,
+                offset_m=move_offset(f),  # the shift in effect (null outside move)
                 role=str(self.node.role),
                 term=self.node.term,
             )

@@ -11,6 +11,14 @@ import numpy as np
 from swarmraft.protocol import Report, StepRecord
 from swarmraft.sim.scenario import FaultConfig
 
+#: how far a `move` lie shifts its drone east, m, where the fault gives no ``offset_m``
+MOVE_OFFSET_M = 10.0
+
+
+def move_offset(fault: FaultConfig) -> float | None:
+    """The east shift of a `move` lie, m (the fault's, or the default); None for other modes."""
+    return (fault.offset_m or MOVE_OFFSET_M) if fault.mode == "move" else None
+
 
 def falsify(rec: StepRecord, fault: FaultConfig) -> StepRecord | None:
     """The lying leader's record in place of the honest ``rec`` (None where the mode changes
@@ -19,7 +27,7 @@ def falsify(rec: StepRecord, fault: FaultConfig) -> StepRecord | None:
     d = fault.drone - 1
     if fault.mode == "move":
         pos = rec.positions.copy()
-        pos[d] = np.where(np.isfinite(pos[d]), pos[d], 0.0) + [fault.offset_m or 10.0, 0.0, 0.0]
+        pos[d] = np.where(np.isfinite(pos[d]), pos[d], 0.0) + [move_offset(fault), 0.0, 0.0]
         return replace(rec, positions=pos)
     if fault.mode in ("clear", "accuse") and bool(rec.faulty[d]) == (fault.mode == "clear"):
         flags = rec.faulty.copy()

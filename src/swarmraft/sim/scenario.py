@@ -181,7 +181,7 @@ class FaultConfig(_Strict):
     at_s: float = Field(ge=0)
     drone: int | None = None
     mode: Literal["move", "clear", "accuse", "censor"] | None = Field(None, description="lying-leader")
-    offset_m: float | None = Field(None, gt=0, description="lying-leader move: shift east, m")
+    offset_m: float | None = Field(None, gt=0, description="lying-leader move: shift east, m (None: 10)")
     groups: list[list[int]] = Field(default_factory=list)
     value: float | None = Field(None, ge=0, le=1, description="loss probability")
     for_s: float | None = Field(None, gt=0, description="pause: how long, s")

@@ -425,3 +425,43 @@ def test_warm_up_loads_what_a_paper_mission_step_compiles():
     flagged, new = (int(w) for w in r.stdout.split()[1::2])
     assert flagged > 0, r.stdout  # drones were gated: the path ran
     assert new == 0, r.stdout
+
+
+class _JumpingClock:
+    """The time module, but its wall clock (``time()``) jumps ``by`` s forward once the real
+    one passes ``at``: what a machine paused while its wall clock ran on (a busy virtual
+    machine), or a stepped clock, looks like to a drone."""
+
+    def __init__(self, at: float, by: float) -> None:
+        self.at, self.by = at, by
+
+    def time(self) -> float:
+        now = time.time()
+        return now + (self.by if now > self.at else 0.0)
+
+    def __getattr__(self, name):  # noqa: ANN001, ANN204
+        return getattr(time, name)
+
+
+def test_a_wall_clock_jump_reschedules_the_steps(tmp_path, monkeypatch):
+    """Three drone hosts in this process (of a 4-drone swarm, 8 s); 2 s into it the wall
+    clock jumps 2 s forward. The drones schedule their steps again from the wall clock and go
+    on committing; before, every later step's timer fired at a moment the wall clock called
+    over, and nothing more was committed (a 30 s launch committed nothing after 9 s)."""
+    import swarmraft.net.node as node_module
+
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=8))
+    start = time.time() + 1.0
+    path, _ = prepare_swarm(tmp_path / "run", scenario, 4, start)
+    hosts = [DroneHost(load_swarm(path), i) for i in (1, 2, 3)]
+    monkeypatch.setattr(node_module, "time", _JumpingClock(start + 2.0, 2.0))
+
+    async def main():
+        await asyncio.wait_for(asyncio.gather(*(h.run() for h in hosts)), 40)
+
+    asyncio.run(main())
+    applied = [int(k) for h in hosts for k, rec in h._written.items() if rec]
+    assert max(applied) >= 60, max(applied)  # the steps after the jump (2 s = 20 steps skipped)
+    assert sum(k > 45 for k in applied) >= 20
+    assert all(h.counters["clock_resyncs"] >= 1 for h in hosts)

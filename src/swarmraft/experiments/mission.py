@@ -167,19 +167,13 @@ def wrong_partition(log: MissionLog) -> np.ndarray:
     return (judged(log) & (log.faulty != log.spoofed)).any(axis=1)
 
 
-def _stat(values: np.ndarray, f: Callable[[np.ndarray], float]) -> float | None:
-    """``f`` of the finite values, rounded to 0.01; None when there are none."""
+def _stat(values: np.ndarray, f: Callable[[np.ndarray], float] = np.mean, digits: int = 3) -> float | None:
+    """``f`` (default the mean) of the finite values, rounded to ``digits`` (default: mm);
+    None when there are none (exact data has no bound, a drone may have no committed
+    position, a run may commit no step)."""
     v = np.asarray(values, float)
     v = v[np.isfinite(v)]
-    return round(float(f(v)), 2) if v.size else None
-
-
-def _mean(values: np.ndarray) -> float | None:
-    """Mean of the finite values, rounded to mm; None when there are none (exact data has no
-    bound, a drone may have no committed position)."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    return round(float(v.mean()), 3) if v.size else None
+    return round(float(f(v)), digits) if v.size else None
 
 
 def _max(values: np.ndarray) -> float | None:
@@ -253,11 +247,11 @@ def _spoof_detection(log: MissionLog, errors: dict[str, np.ndarray], k_sp: int, 
         if first is None
         else round(float(errors["gnss"][first, i]), 3),
         "worst_error_m": _max(errors["swarmraft"][steps, i]),
-        "mean_error_m": _mean(errors["swarmraft"][steps, i]),
-        "mean_snapshot_bound_m": _mean(errors["snapshot_bound"][steps, i]),
+        "mean_error_m": _stat(errors["swarmraft"][steps, i]),
+        "mean_snapshot_bound_m": _stat(errors["snapshot_bound"][steps, i]),
         "p95_error_to_snapshot_bound": round(float(np.percentile(ratio, 95)), 3) if ratio.size else None,
-        "mean_error_after_detection_m": _mean(err[since]),
-        "mean_snapshot_bound_after_detection_m": _mean(bound[since]),
+        "mean_error_after_detection_m": _stat(err[since]),
+        "mean_snapshot_bound_after_detection_m": _stat(bound[since]),
     }
 
 
@@ -328,8 +322,8 @@ def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndar
                 "event": what,
                 "from_s": round(t0, 3),
                 "to_s": round(min(t1, float(log.t[-1])), 3),
-                "honest_error_swarmraft_m": _mean(errors["swarmraft"][rows][:, honest][alive]),
-                "honest_error_gnss_m": _mean(errors["gnss"][rows][:, honest][alive]),
+                "honest_error_swarmraft_m": _stat(errors["swarmraft"][rows][:, honest][alive]),
+                "honest_error_gnss_m": _stat(errors["gnss"][rows][:, honest][alive]),
                 "skipped_steps": int((~log.committed[rows]).sum()),
                 "wrong_partition_steps": int(wrong[rows].sum()),
             }
@@ -388,11 +382,11 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                     "drone": d,
                     "from_s": o.start_s,
                     "to_s": o.end_s,
-                    "mean_error_swarmraft_m": _mean(errors["swarmraft"][k0:k1, i]),
-                    "mean_error_ins_aligned_m": _mean(errors["ins_aligned"][k0:k1, i]),
-                    "mean_error_ins_alone_m": _mean(errors["ins_alone"][k0:k1, i]),
-                    "ins_alone_error_at_start_m": _mean(errors["ins_alone"][k0 : k0 + 1, i]),
-                    "mean_snapshot_bound_m": _mean(errors["snapshot_bound"][k0:k1, i]),
+                    "mean_error_swarmraft_m": _stat(errors["swarmraft"][k0:k1, i]),
+                    "mean_error_ins_aligned_m": _stat(errors["ins_aligned"][k0:k1, i]),
+                    "mean_error_ins_alone_m": _stat(errors["ins_alone"][k0:k1, i]),
+                    "ins_alone_error_at_start_m": _stat(errors["ins_alone"][k0 : k0 + 1, i]),
+                    "mean_snapshot_bound_m": _stat(errors["snapshot_bound"][k0:k1, i]),
                 }
             )
     hon_mask = honest[None, :] & seen
@@ -416,9 +410,9 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "records_identical_on_all_nodes": log.agreement.identical,
         "bound_note": BOUND_NOTE,
         "sustained_detection_s": SUSTAIN_S,
-        "honest_error_gnss_m": _mean(errors["gnss"][:, honest]),
-        "honest_error_swarmraft_m": _mean(errors["swarmraft"][:, honest]),
-        "honest_snapshot_bound_m": _mean(errors["snapshot_bound"][:, honest]),
+        "honest_error_gnss_m": _stat(errors["gnss"][:, honest]),
+        "honest_error_swarmraft_m": _stat(errors["swarmraft"][:, honest]),
+        "honest_snapshot_bound_m": _stat(errors["snapshot_bound"][:, honest]),
         "honest_false_positive_rate": round(fp, 5),
         "honest_worse_than_gnss": honest_excess(log, errors),
         "wrong_partition_step_count": len(wrong_steps),
@@ -428,8 +422,8 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "after_faults": _after_faults(log, errors, wrong),
         "outages": outages,
         # None (JSON null) where no step committed: no latency to take a median of
-        "latency_ms_median": _stat(log.latency_ms, np.median),
-        "latency_ms_p99": _stat(log.latency_ms, lambda v: np.percentile(v, 99)),
+        "latency_ms_median": _stat(log.latency_ms, np.median, 2),
+        "latency_ms_p99": _stat(log.latency_ms, lambda v: np.percentile(v, 99), 2),
         "raft_messages_per_committed_step": None if not committed else round(raft_per, 2),
         "raft_minimum_per_step": per_step_min,
         "reports_per_step": round(float(log.report_messages.mean()), 2),

@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import struct
 from dataclasses import dataclass
 
 import numpy as np
+
+from swarmraft.estimation.snapshot import distances_ok
 
 _SOURCES = ("gnss", "ins")
 #: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
@@ -53,16 +56,17 @@ class Report:
         or a short range row raised inside the leader's detector (a LinAlgError, a broadcast
         error) and stopped its step."""
         pos = np.asarray(self.position, float)
-        if pos.shape != (3,) or not np.isfinite(pos).all():
+        if pos.shape != (3,) or not all(map(math.isfinite, pos.tolist())):
             return "position is not 3 finite numbers"
         rng = np.asarray(self.ranges, float)
         if rng.shape != (n,):
             return f"{rng.size} ranges in a swarm of {n}"
-        if np.isinf(rng).any() or (rng[~np.isnan(rng)] < 0).any():
+        if not distances_ok(rng):
             return "a range that is not a finite distance >= 0"
+        # (small arrays: Python's floats, a microsecond, where numpy's calls cost several each)
         for name in ("innovation", "drift", "ins"):
             value = getattr(self, name)
-            if value is not None and np.isinf(np.asarray(value, float)).any():
+            if value is not None and any(map(math.isinf, np.ravel(value).tolist())):
                 return f"an infinite {name}"
         return None
 

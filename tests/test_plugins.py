@@ -191,5 +191,5 @@ def test_an_attack_is_checked_by_name_and_result(clean_registry):
     c = build_config("realistic", attack={"name": "broken"})
     with pytest.raises(ValueError, match="attack 'broken': its function returned str, not an Attack"):
         c.attack.model()
-    with pytest.raises(ValueError, match="the built-in attack 'jump' takes none"):
-        build_config("realistic", attack={"name": "jump", "params": {"x": 1}}).attack.model()
+    with pytest.raises(Exception, match="params: the built-in attack 'jump' takes none"):
+        build_config("realistic", attack={"name": "jump", "params": {"x": 1}})

@@ -177,6 +177,8 @@ class AttackConfig(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> AttackConfig:
+        if self.params and self.name in ATTACKS:  # settings nothing would read
+            raise ValueError(f"params: the built-in attack {self.name!r} takes none")
         if self.high < self.low:
             raise ValueError("high must be >= low")
         if self.enlarge_high < self.enlarge_low:
@@ -192,8 +194,6 @@ class AttackConfig(_Strict):
                     f"attack {self.name!r}: its function returned {type(attack).__name__}, not an Attack"
                 )
             return attack
-        if self.params:
-            raise ValueError(f"attack.params: the built-in attack {self.name!r} takes none")
         jump = Jump(self.jump, self.half_width, self.low, self.high)
         if self.name == "jump":
             return Attack(jump)

@@ -145,6 +145,8 @@ def load_results(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndar
     if not (folder / "cells.csv").exists():
         from swarmraft.experiments.results_folder import folder_kind
 
+        if not folder.is_dir():
+            raise ConfigError(f"{folder}: no such folder (so no cells.csv)")
         kind = folder_kind(folder)
         if kind is not None:  # not to be told to sweep into a mission's or comparison's folder
             where = " (its sweeps are in <attack>/<detector>)" if kind == "compare" else ""

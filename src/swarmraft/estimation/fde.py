@@ -7,7 +7,9 @@ exclude the drone with the largest residual contribution (its GNSS report and it
 ranges), one drone a round (each re-solve starts from the last solution), and repeat, until
 the tests pass, ``f_max`` drones are excluded or ``min_trusted`` remain. The final trusted
 set goes through `integrity.finish` (robust estimate, statuses, protection levels): if its
-tests still fail, exclusion is exhausted and the status is ``alarm``."""
+tests still fail, exclusion is exhausted and the status is ``alarm``. The rounds' solves only
+feed the tests and a start of that robust estimate, so they take the reduced solve
+(`joint.weighted_gauss_newton`: the excluded drones' blocks eliminated)."""
 
 from __future__ import annotations
 
@@ -65,6 +67,7 @@ def fde_detector(batch: SnapshotBatch, p: FDEParams) -> VerdictBatch:
             noise.range_sigma,
             iters=8,
             x0=start,
+            reduced=True,  # these solves only feed the test: see the module's docstring
         )
         x_all = np.zeros_like(reported) if x_all is None else x_all
         x_all[active] = x

@@ -154,6 +154,12 @@ def test_record_dir_refuses_a_folder_that_is_not_a_missions_and_mixed_uses(tmp_p
     out = swarmraft("record", str(tmp_path / "nope"), rc=2)
     assert out.startswith("error: DIR: no folder ") and "--out" not in out
     assert str(tmp_path / "nope") in "".join(out.split())
+    # the two uses' files mixed up: a sensor log is CSV, a recording comes from a folder
+    out = swarmraft("record", "--scenario", "demo", "--out", str(tmp_path / "r.rrd"), rc=2)
+    assert "with --scenario the file written is a sensor log (CSV)" in " ".join(out.split())
+    assert not (tmp_path / "r.rrd").exists()
+    out = swarmraft("record", "--scenario", "demo", "--out", str(tmp_path / "s.csv"), "--seconds", "0", rc=2)
+    assert "--seconds" in out and "x>0" in out.replace(" ", "")
 
 
 @pytest.mark.parametrize(

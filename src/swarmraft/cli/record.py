@@ -24,7 +24,7 @@ from swarmraft.cli.app import console, main
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="override the scenario's seed")
 @click.option(
     "--seconds",
-    type=click.FloatRange(min=0),
+    type=click.FloatRange(min=0, min_open=True),
     default=None,
     help="record only the first SECONDS of the scenario (default: all of it)",
 )
@@ -62,6 +62,12 @@ def record(
     from swarmraft.net.sources.replay import record_world, write_sensor_log
     from swarmraft.sim.sensing import ScenarioWorld
 
+    if out.suffix.lower() == ".rrd":
+        raise click.BadParameter(
+            f"{out}: with --scenario the file written is a sensor log (CSV); a .rrd recording is made "
+            "from a mission's folder: swarmraft record DIR",
+            param_hint="--out",
+        )
     if out.parent != Path("") and not out.parent.is_dir():
         raise click.BadParameter(f"no folder {out.parent}", param_hint="--out")
     sc = load_scenario(scenario, seed=seed)

@@ -316,6 +316,10 @@ def test_a_known_set_needs_a_detector_with_a_noise_model():
         verify_given(b, np.ones((1, 5), bool), "paper")
     with pytest.raises(ValueError, match=r"known_set: trusted set of shape \(5,\)"):
         verify_given(b, np.ones(5, bool), "joint")
+    # drone indices where a mask belongs are refused, not read as "nonzero = trusted"
+    with pytest.raises(ValueError, match="mask .* not drone indices"):
+        verify_given(b, np.array([[0, 1, 2, 3, 4]]), "joint")
+    assert verify_given(b, np.array([[1, 1, 1, 1, 0]]), "joint").faulty.tolist() == [[False] * 4 + [True]]
 
 
 @pytest.mark.parametrize("n,f", [(9, 2), (13, 3)])

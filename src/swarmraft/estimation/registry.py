@@ -185,7 +185,12 @@ def verify_given(batch: SnapshotBatch, trusted: Any, detector: str = "joint", **
     check_known_set(detector, params)
     batch = batch.checked()
     p = detector_params(detector, **params)
-    trusted = np.asarray(trusted, bool)
+    given = np.asarray(trusted)
+    if given.dtype != bool and not np.isin(given, (0, 1)).all():
+        raise ValueError(
+            "known_set: the trusted set is a mask (T, n) of booleans (or 0/1), not drone indices"
+        )
+    trusted = given.astype(bool)
     want = np.shape(batch.reported)[:2]
     if trusted.shape != want:
         raise ValueError(f"known_set: trusted set of shape {trusted.shape}, the batch has {want}")

@@ -344,7 +344,7 @@ def run_sweep(
         for n, f in todo
         for ci, size in plan
     ]
-    tick = progress(len(tasks) and config.trials * len(todo), len(todo)) if progress else None
+    tick = progress(config.trials * len(todo), len(todo)) if progress and tasks else None  # no bar of 0/0
     pending: dict[tuple[int, int], dict[int, dict]] = {c: {} for c in todo}
     executor_name = "none (all cells reused)"
     meta = {

@@ -88,7 +88,7 @@ def test_n_below_3_is_refused_not_dropped(cwd):
 def test_a_known_set_needs_a_detector_with_a_noise_model(cwd):
     fails_cleanly(
         ["sweep", "--known-set", "--n", "5", "--trials", "5", "--out", "o"],
-        "error: known_set: detector 'paper' has no noise model to estimate with; use clique, fde",
+        "error: --known-set: detector 'paper' has no noise model to estimate with; use clique, fde",
         cwd,
     )
     fails_cleanly(
@@ -104,13 +104,31 @@ def test_a_known_set_needs_a_detector_with_a_noise_model(cwd):
             "--out",
             "o",
         ],
-        "error: known_set: set_search is a detection parameter of joint, not used with the true honest set",
+        "error: --known-set: set_search is a detection parameter of joint, not used with the true honest set",
         cwd,
     )
     # the rival search's parameters are detection's too, though every statistical detector has them
     fails_cleanly(
         ["sweep", "--known-set", "--detector", "clique", "--param", "better_fit_margin=3", "--n", "9"],
-        "error: known_set: better_fit_margin is a detection parameter of clique, not used with the true",
+        "error: --known-set: better_fit_margin is a detection parameter of clique, not used with the",
+        cwd,
+    )
+
+
+def test_a_sweep_flag_the_config_refuses_is_named_as_the_flag(cwd):
+    # the config's own field names (attack.name, detector, detector_params) mean nothing on
+    # the command line
+    fails_cleanly(
+        ["sweep", "--attack", "nope", "--n", "5", "--out", "o"], "error: --attack: unknown attack 'nope'", cwd
+    )
+    fails_cleanly(
+        ["sweep", "--detector", "nope", "--n", "5", "--out", "o"],
+        "error: --detector: unknown name 'nope'",
+        cwd,
+    )
+    fails_cleanly(
+        ["sweep", "--param", "k=-1", "--detector", "clique", "--n", "5", "--out", "o"],
+        "error: --param: clique.k:",
         cwd,
     )
 

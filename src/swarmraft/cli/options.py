@@ -187,8 +187,25 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
     try:
         return build_config(preset, **{**settings, **flags})
     except ConfigError as exc:
-        # a field the file set (and no flag overrode) is named with the file it came from
-        field = str(exc).split(":", 1)[0].split(".", 1)[0]
+        # a field the file set (and no flag overrode) is named with the file it came from; one
+        # a flag set, with the flag
+        where, _, what = str(exc).partition(":")
+        field = where.split(".", 1)[0]
         if config_file is not None and field in settings and field not in flags:
             raise ConfigError(f"--config {config_file}: {exc}") from None
+        if field in flags and field in _FLAG_OF and what:
+            raise click.BadParameter(what.strip(), param_hint=_FLAG_OF[field]) from None
         raise
+
+
+# the sweep's config fields the command line sets, and the option that sets each
+_FLAG_OF = {
+    "n": "--n",
+    "f": "--f",
+    "trials": "--trials",
+    "seed": "--seed",
+    "detector": "--detector",
+    "detector_params": "--param",
+    "attack": "--attack",
+    "known_set": "--known-set",
+}

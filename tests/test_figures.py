@@ -284,8 +284,8 @@ def test_distribution_counts_undetermined_trials_instead_of_drawing_nothing(draw
         "recovered": np.array([np.nan] * 4 + [1.0, np.nan, 2.0, 3.0]),
     }
     vf.distribution(trials, "x.png")
-    texts = [t.get_text() for t in drawn[0].axes[0].texts]
-    assert texts == ["all undetermined", "1 undetermined"]
+    ticks = [t.get_text() for t in drawn[0].axes[0].get_xticklabels()]
+    assert ticks == ["(5,2)\n4 of 4\nundetermined", "(7,3)\n1 of 4\nundetermined"]
 
 
 @pytest.mark.parametrize("draw", ["latency", "messages"])

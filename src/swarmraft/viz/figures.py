@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import LogFormatter  # noqa: E402
 
 TRUE_STYLE = {"c": "green", "marker": "x", "s": 60, "label": "true position"}
 REPORT_STYLE = {"c": "red", "marker": "^", "s": 50, "label": "report"}
@@ -39,6 +40,13 @@ def _per_cell(counts: Sequence[int]) -> str:
     """'200' or '180-200': the trials per cell of a figure's title."""
     lo, hi = min(counts), max(counts)
     return f"{lo}" if lo == hi else f"{lo}-{hi}"
+
+
+def plain_log_labels(axis) -> None:
+    """A log axis labelled 0.5, 2, 30, 400 rather than 5x10^-1, 2x10^0, 3x10^1, 4x10^2 (the
+    same ticks matplotlib picks)."""
+    axis.set_major_formatter(LogFormatter())
+    axis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2.5, 0.5)))
 
 
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
@@ -74,14 +82,15 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
         for ni, fi, r in zip(n[order], f[order], rec, strict=True):
             if not r > 0:
                 continue
-            ax.annotate(
+            ax.annotate(  # right of the point: clear of the y axis's labels
                 f"({ni},{fi})",
                 (ni, r),
                 textcoords="offset points",
-                xytext=(-6, -14),
-                ha="right",
+                xytext=(6, -14),
+                ha="left",
                 fontsize=9,
             )
+        ax.margins(x=0.12)  # room for the last one's
     else:
         for fi in np.unique(f):
             sel = order[f[order] == fi]
@@ -132,6 +141,7 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
                 label="published, reported",
             )
     ax.set_yscale("log")
+    plain_log_labels(ax.yaxis)
     ax.set_xlabel("swarm size n")
     ax.set_ylabel("mean error of attacked drones, m (log)")
     ax.set_xticks(np.unique(n))
@@ -157,7 +167,7 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
     rec = [np.maximum(r[np.isfinite(r)], floor) for r in rec_all]
     undetermined = [int((~np.isfinite(r)).sum()) for r in rec_all]
     pos = np.arange(len(keys)) * 3.0
-    fig, ax = plt.subplots(figsize=(max(7, 1.1 * len(keys)), 5))
+    fig, ax = plt.subplots(figsize=(max(7, 1.25 * len(keys)), 5))
     b1 = ax.boxplot(
         base,
         positions=pos - 0.55,
@@ -179,7 +189,17 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
     for patch in b2["boxes"]:
         patch.set_facecolor("#ffd36e")
     ax.set_yscale("log")
-    ax.set_xticks(pos, [f"({a},{b})" for a, b in keys])
+    plain_log_labels(ax.yaxis)
+    # a cell's undetermined trials under its name (drawn in the plot, the count ran over the
+    # verified box's whisker)
+    names = [
+        f"({a},{b})" + (f"\n{k} of {r.size}\nundetermined" if k else "")
+        for (a, b), k, r in zip(keys, undetermined, rec_all, strict=True)
+    ]
+    ax.set_xticks(pos, names, fontsize=9)
+    for tick, k in zip(ax.get_xticklabels(), undetermined, strict=True):
+        if k:
+            tick.set_color("#8a5a00")
     ax.set_xlabel("(n, f)")
     ax.set_ylabel(f"per-trial mean error of attacked drones, m (log; floor {floor:g})")
     ax.legend(
@@ -189,19 +209,6 @@ def distribution(trials: Mapping[str, np.ndarray], path: Path, title: str = "") 
         bbox_to_anchor=(1.0, 1.0),
     )
     ax.grid(True, axis="y", which="major", ls=":", alpha=0.6)
-    for x, k, total in zip(pos + 0.55, undetermined, rec_all, strict=True):
-        if k:
-            label = "all undetermined" if k == total.size else f"{k} undetermined"
-            ax.annotate(
-                label,
-                (x, 0.02),
-                xycoords=("data", "axes fraction"),
-                rotation=90,
-                fontsize=7,
-                ha="center",
-                va="bottom",
-                color="#8a5a00",
-            )
     counts = _per_cell([int(((n == a) & (f == b)).sum()) for a, b in keys])
     under = f"{title}, {counts} trials per cell" if title else f"{counts} trials per cell"
     ax.set_title(f"Error distribution per trial\n{under}", fontsize=10)
@@ -382,6 +389,7 @@ def compare(
         ax.set_title(f"attack: {attack}", fontsize=10)
         if use_log:
             ax.set_yscale("log")
+            plain_log_labels(ax.yaxis)
         else:
             ax.set_ylim(bottom=0)
             if metric.endswith("_rate"):  # a rate: the whole 0-1 range unless all are small

@@ -286,6 +286,14 @@ def test_other_commands_check_the_same_options(cwd, args, needle):
             "s.toml: protocol.detector_params: joint.colour: unknown parameter",
         ),
         ("", ["--detector", "nope"], "--detector: unknown name 'nope'"),
+        # a negative time drew the map counted from the end, a late one the last step's
+        ("maps_at_s = [-1.0, 99]\n", [], "s.toml: maps_at_s: [-1.0, 99.0] outside the mission"),
+        # a misspelt key: named as the file spells it, list items by index, a close key offered
+        (
+            "[[spoof]]\nkind = 'jump'\ndrones = [2]\nstart_s = 1.0\nmagnitud = 20\n",
+            [],
+            "spoof[0].magnitud: unknown parameter (did you mean magnitude?)",
+        ),
         (
             '[protocol]\ndetector = "joint"\ndetector_params = {c_gnss = 5.0}\n',
             ["--detector", "paper"],

@@ -16,6 +16,7 @@ from __future__ import annotations
 import difflib
 import importlib.metadata
 import math
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -104,17 +105,49 @@ def get_detector(name: str) -> Detector:
         raise ValueError(f"detector: unknown name {name!r}; known: {', '.join(detector_names())}") from None
 
 
-def one_line(exc: ValidationError, prefix: str) -> str:
-    """A pydantic error as one line naming the field: 'prefix.field: message'."""
+def one_line(
+    exc: ValidationError, prefix: str, model: type[BaseModel] | None = None, brackets: bool = True
+) -> str:
+    """A pydantic error as one line naming the field: 'prefix.field[k].field: message' (a list
+    item by its index, as the project's own checks name it; with ``brackets`` off, 'field.k',
+    as a TOML table keyed by integers is spelt). With ``model`` (the model that raised), an
+    unknown key gets a close spelling of a key it has: '(did you mean X?)'."""
     parts = []
     for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"])
+        loc = "".join(f"[{p}]" if isinstance(p, int) and brackets else f".{p}" for p in err["loc"]).lstrip(
+            "."
+        )
         where = f"{prefix}.{loc}" if prefix and loc else (prefix or loc)
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
-            msg = "unknown parameter"
+            msg = "unknown parameter" + _close_key(model, err["loc"])
         parts.append(f"{where}: {msg}" if where else msg)
     return "; ".join(parts)
+
+
+def _close_key(model: type[BaseModel] | None, loc: tuple) -> str:
+    """' (did you mean X?)' for the unknown key at ``loc`` of ``model``, if one is close."""
+    for key in loc[:-1]:  # down to the model that holds the key
+        if model is None:
+            return ""
+        if isinstance(key, int):
+            continue
+        field = model.model_fields.get(str(key))
+        model = _model_in(field.annotation) if field is not None else None
+    if model is None or not loc or isinstance(loc[-1], int):
+        return ""
+    close = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _model_in(annotation: Any) -> type[BaseModel] | None:
+    """The pydantic model an annotation holds (itself, or inside list[...], X | None ...)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        if found := _model_in(arg):
+            return found
+    return None
 
 
 def _unknown_hint(name: str, unknown: list[str]) -> str:

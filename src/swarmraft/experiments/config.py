@@ -340,4 +340,4 @@ def build_config(preset: str = "reference", **overrides: Any) -> SweepConfig:
     try:
         return SweepConfig(**data)
     except ValidationError as exc:
-        raise ConfigError(one_line(exc, "")) from None
+        raise ConfigError(one_line(exc, "", SweepConfig)) from None

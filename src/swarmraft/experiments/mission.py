@@ -80,7 +80,7 @@ def load_scenario(path: str | Path, **overrides: Any) -> Scenario:
     try:
         return Scenario(**data)
     except ValidationError as exc:
-        raise ConfigError(f"{path.name}: {one_line(exc, '')}") from None
+        raise ConfigError(f"{path.name}: {one_line(exc, '', Scenario)}") from None
 
 
 @dataclass(frozen=True)

@@ -114,7 +114,7 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
     try:
         sc = Scenario(**data)
     except ValidationError as exc:
-        raise NodeConfigError(f"scenario {path.name}: {one_line(exc, '')}") from None
+        raise NodeConfigError(f"scenario {path.name}: {one_line(exc, '', Scenario)}") from None
     if sc.drones != len(swarm.drones):
         raise NodeConfigError(
             f"scenario {path.name}: {sc.drones} drones, the swarm file lists {len(swarm.drones)}"

@@ -220,7 +220,10 @@ def load_swarm(path: str | Path) -> SwarmFile:
     try:
         swarm = SwarmFile.model_validate(data)
     except ValidationError as exc:
-        raise SwarmFileError(f"{path}: {_source_paths(one_line(exc, ''))}") from None
+        # drones are a table keyed by id ([drones.1]), named as the file spells them
+        raise SwarmFileError(
+            f"{path}: {_source_paths(one_line(exc, '', SwarmFile, brackets=False))}"
+        ) from None
     return swarm.resolved(path.parent)
 
 

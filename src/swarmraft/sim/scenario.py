@@ -265,6 +265,9 @@ class Scenario(_Strict):
                 raise ValueError(f"fault[{k}].for_s: pause needs a duration")
             if f.kind != "pause" and f.for_s is not None:
                 raise ValueError(f"fault[{k}].for_s: only a pause has a duration")
+        if outside := [t for t in self.maps_at_s if not 0 <= t <= self.duration_s]:
+            # a negative time drew a map counted from the end, a late one the last step's
+            raise ValueError(f"maps_at_s: {outside} outside the mission (0 to {self.duration_s:g} s)")
         k, m = self.protocol.censor_k, self.protocol.censor_m
         if k >= m:
             raise ValueError(f"protocol.censor_k: {k} must be below censor_m = {m}")

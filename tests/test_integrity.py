@@ -596,3 +596,28 @@ def test_a_separation_whose_re_solve_crawled_is_solved_again_before_a_verdict_sa
     assert d.attackers[539, 3] and not v.faulty[0, 3]  # the spoofer trusted
     assert v.status[0] == "alarm"
     assert v.diagnostics["alarm_cause"][0] == "separation test"
+
+
+def test_a_verdict_without_protection_levels_is_not_judged_misleading():
+    """`paper` gives no levels (nan): its ok verdicts 30 m off are neither misleading nor
+    safe. The trial's hpe/vpe and misleading count are nan (a cell of such trials: a nan
+    misleading rate and count, tests/test_sweep.py), not 0, which read as "none"."""
+    from swarmraft.estimation import VerdictBatch
+    from swarmraft.experiments.trials import Draw, integrity_metrics
+
+    truth = np.zeros((2, 3, 3))
+    pos = truth + [30.0, 0.0, 0.0]
+    nan = np.full((2, 3), np.nan)
+    v = VerdictBatch(pos, np.zeros((2, 3), bool), np.array(["ok", "ok"]), hpl=nan, vpl=nan)
+    d = Draw(truth, truth, np.zeros((2, 3, 3)), np.zeros((2, 3), bool))
+    m = integrity_metrics(d, v)
+    assert np.isnan(m["misleading"]).all() and np.isnan(m["hpe"]).all() and np.isnan(m["vpe"]).all()
+    assert m["ok_over_20m_pl"].tolist() == [3, 3]  # over 20 m is judged without a level
+    # one drone with a level makes the trial judged
+    hpl = nan.copy()
+    hpl[0, 1] = 10.0
+    m = integrity_metrics(
+        d, VerdictBatch(pos, np.zeros((2, 3), bool), np.array(["ok", "ok"]), hpl=hpl, vpl=nan)
+    )
+    assert m["misleading"][0] == 1 and np.isnan(m["misleading"][1])
+    assert m["hpe"][0] == 30.0

@@ -246,3 +246,22 @@ def test_mission_records_carry_protection_levels_that_bound_the_error(tmp_path):
     assert result.summary["integrity"]["misleading_drone_steps"] == 0
     header = (tmp_path / "steps.csv").read_text().splitlines()[0].split(",")
     assert {"hpl", "vpl", "misleading"} <= set(header)
+
+
+def test_a_mission_whose_records_have_no_protection_levels_does_not_claim_none_misleading(tmp_path):
+    """`paper` records carry no levels: the summary's misleading count is None (not judged),
+    where 0 read as "every ok record within its protection levels"."""
+    from swarmraft.experiments.mission import load_scenario, run_and_write
+
+    sc = load_scenario("paper-recovery-6-2", duration_s=3.0)
+    assert sc.protocol.detector == "paper"
+    result = run_and_write(sc, tmp_path)
+    assert result.summary["integrity"]["ok_steps"] > 0
+    assert result.summary["integrity"]["misleading_drone_steps"] is None
+    res = CliRunner().invoke(
+        main, ["mission", "--scenario", "paper-recovery-6-2", "--out", str(tmp_path / "o")]
+    )
+    assert res.exit_code == 0, res.output
+    assert "misleading information: not judged (no ok record has a protection level)" in " ".join(
+        res.output.split()
+    )

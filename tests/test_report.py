@@ -362,3 +362,14 @@ def test_animation_bad_input_is_one_line_and_writes_nothing(mission_dir, sweep_d
     for args, needle in cases:
         one_error_line(args, needle)
     assert sorted(mission_dir.rglob("*")) + sorted(tmp_path.rglob("*")) == before
+
+
+def test_misleading_information_not_judged_is_a_warning_not_a_pass(mission_dir, tmp_path):
+    folder = tmp_path / "paper"
+    shutil.copytree(mission_dir, folder)
+    s = json.loads((folder / "summary.json").read_text())
+    s["integrity"]["misleading_drone_steps"] = None  # a `paper` mission: no levels
+    (folder / "summary.json").write_text(json.dumps(s))
+    page = report_of(folder)
+    assert ("warn", "misleading information not judged: no ok record has a protection level") in page.checks
+    assert not any("no misleading information" in t for _, t in page.checks)

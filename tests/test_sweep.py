@@ -49,6 +49,9 @@ def test_tables_and_run_json(tmp_path):
     }
     # the paper's metric: baseline is the mean report error of the attackers (~28.8 m)
     assert 25 < cells["baseline_mean"].min() and cells["baseline_mean"].max() < 33
+    # `paper` gives no protection levels: misleading information is not judged (nan), not 0
+    assert np.isnan(cells["misleading_rate"]).all() and np.isnan(cells["misleading_trials"]).all()
+    assert np.isnan(trials["misleading"]).all() and np.isnan(trials["hpe"]).all()
 
 
 def test_diagonal_grid():

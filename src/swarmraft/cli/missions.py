@@ -125,6 +125,8 @@ def print_mission_summary(summary: dict) -> None:
             f" at {', '.join(f'{t:g} s' for t in ig['misleading_times_s'])}"
             if mis
             else "misleading information (error above its level, status ok): none"
+            if mis is not None
+            else "misleading information: not judged (no ok record has a protection level)"
         ),
         2,
     )

@@ -67,7 +67,6 @@ CELL_FINITE = (
     *(f"status_{s}" for s in STATUSES),
     "attacked_bound_excluded",
     "honest_bound_excluded",
-    "misleading_trials",
     "ok_over_20m_pl",
     "ok_over_20m_hv",
     "ok_over_100m",
@@ -166,9 +165,12 @@ def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) 
         row[f"{g}_bound_excluded"] = int((~both).sum()) if np.isfinite(bound_t).any() else 0
         row[f"{g}_nees"] = _mean(np.asarray(trials[f"{g}_nees"], float))
         row[f"{g}_catastrophic"] = _mean(np.asarray(trials[f"{g}_catastrophic"], float))
-    mis = np.asarray(trials["misleading"], float) > 0
-    row["misleading_rate"] = float(mis[ok].mean()) if ok.any() else float("nan")
-    row["misleading_trials"] = int(mis.sum())
+    # nan where the trial's verdict has no protection levels (`paper`): not judged
+    mis_t = np.asarray(trials["misleading"], float)
+    judged = np.isfinite(mis_t)
+    mis = mis_t > 0
+    row["misleading_rate"] = float(mis[ok & judged].mean()) if (ok & judged).any() else float("nan")
+    row["misleading_trials"] = int(mis.sum()) if judged.any() else float("nan")
     row["ok_over_20m_pl"] = int(np.asarray(trials["ok_over_20m_pl"], float).sum())
     row["ok_over_20m_hv"] = int(np.asarray(trials["ok_over_20m_hv"], float).sum())
     row["ok_over_100m"] = int(np.asarray(trials["ok_over_100m"], float).sum())

@@ -454,12 +454,15 @@ def integrity_summary(log: MissionLog) -> dict[str, Any]:
     mis = misleading_information(log)
     ok = log.committed & (log.status == "ok")
     finite = np.isfinite(log.hpl) & ok[:, None]
+    # no ok record with a protection level (`paper` gives none): misleading information is
+    # not judged, None, not 0
+    judged = bool((~np.isnan(log.hpl) & ok[:, None]).any())
     return {
         "ok_steps": int(ok.sum()),
         "status_counts": {s: int((log.status == s).sum()) for s in sorted(set(log.status.tolist()))},
         "median_hpl_m": round(float(np.median(log.hpl[finite])), 3) if finite.any() else None,
         "median_vpl_m": round(float(np.median(log.vpl[finite])), 3) if finite.any() else None,
-        "misleading_drone_steps": int(mis.sum()),
+        "misleading_drone_steps": int(mis.sum()) if judged else None,
         "misleading_times_s": [round(float(t), 1) for t in log.t[mis.any(axis=1)][:20]],
     }
 

@@ -147,12 +147,16 @@ def integrity_metrics(d: Draw, v: VerdictBatch) -> dict[str, np.ndarray]:
     ok = (v.status == "ok")[:, None] & np.isfinite(hpe)
     e3 = np.linalg.norm(err, axis=2)
     pl3 = np.hypot(v.hpl, v.vpl)
+    # a trial whose verdict gives no drone a level (nan: `paper`) is not judged for
+    # misleading information: nan, not 0 (no error can exceed a level that is not there)
+    levelled = ~(np.isnan(v.hpl) & np.isnan(v.vpl)).all(axis=1)
+    misleading = (ok & ((hpe > v.hpl) | (vpe > v.vpl))).sum(axis=1)
     return {
-        "hpe": hpe[t, pick],
+        "hpe": np.where(levelled, hpe[t, pick], np.nan),
         "hpl": v.hpl[t, pick],
-        "vpe": vpe[t, pick],
+        "vpe": np.where(levelled, vpe[t, pick], np.nan),
         "vpl": v.vpl[t, pick],
-        "misleading": (ok & ((hpe > v.hpl) | (vpe > v.vpl))).sum(axis=1),
+        "misleading": np.where(levelled, misleading, np.nan),
         "ok_over_20m_pl": (ok & (e3 > np.fmax(20.0, pl3))).sum(axis=1),
         "ok_over_20m_hv": (ok & ((hpe > np.fmax(20.0, v.hpl)) | (vpe > np.fmax(20.0, v.vpl)))).sum(axis=1),
         "ok_over_100m": (ok & (e3 > 100.0)).sum(axis=1),

@@ -282,6 +282,8 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
                 f"drone-steps, t = {times} s",
             )
         )
+    elif "misleading_drone_steps" in ig and mis is None:
+        out.append(("warn", "misleading information not judged: no ok record has a protection level"))
     else:
         out.append(("ok", "no misleading information (every ok record within its protection levels)"))
     for d in s.get("detections", []):

@@ -354,3 +354,30 @@ def test_an_option_that_cannot_apply_is_refused_before_any_work(cwd, args, needl
 def test_a_negative_seed_is_the_options_error(cwd, command):
     # the mission's was "demo.toml: seed: ...", blaming the shipped file for the option's value
     fails_cleanly([*command, "--seed", "-1", "--out", "o"], "error: --seed: -1 is not in the range x>=0", cwd)
+
+
+@pytest.mark.parametrize(
+    ("command", "kind", "files"),
+    [
+        # compare.csv beside a sweep's files made it a comparison: its figures could not be drawn
+        (["compare", "--n", "5", "--trials", "10"], "sweep", ("cells.csv", "run.json")),
+        (["sweep", "--n", "5", "--trials", "10"], "compare", ("compare.csv",)),
+        (["sweep", "--n", "5", "--trials", "10"], "mission", ("steps.csv", "summary.json", "scenario.json")),
+    ],
+)
+def test_a_results_folder_of_another_kind_is_not_written_into(cwd, command, kind, files):
+    (cwd / "res").mkdir()
+    for name in files:
+        (cwd / "res" / name).write_text("x\n")
+    fails_cleanly([*command, "--out", "res"], f"--out res is a {kind} folder", cwd)
+
+
+def test_compare_says_which_sweeps_compare_csv_no_longer_lists(cwd):
+    args = ["compare", "--attacks", "jump", "--n", "5", "--f", "1", "--trials", "10", "--out", "c"]
+    r = CliRunner().invoke(main, [*args, "--detectors", "paper,clique"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, [*args, "--detectors", "clique"])
+    assert r.exit_code == 0, r.output
+    assert "it listed jump/paper too, whose folders are kept" in " ".join(r.output.split())
+    assert "c/jump/paper" not in r.output  # not written by this run: not said to be
+    assert (cwd / "c" / "jump" / "paper" / "cells.csv").exists()

@@ -371,8 +371,9 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
 
     print_table(compare_table(table, title), to)
     written = [Path(out) / "compare.csv"]
-    # each (attack, detector)'s own sweep folder, OUT/<attack>/<detector>
-    for cells in sorted(Path(out).glob("*/*/cells.csv")):
+    # each (attack, detector)'s own sweep folder, OUT/<attack>/<detector>, of those tabled
+    for pair in dict.fromkeys(zip(table["attack"], table["detector"], strict=True)):
+        cells = Path(out, *map(str, pair), "cells.csv")
         files = (cells, cells.with_name("trials.csv"), cells.with_name("run.json"))
         written += [p for p in files if p.exists()]
     for name in compare_figure_names(table):
@@ -444,7 +445,7 @@ def compare_cmd(
     identification rates.
     """
     from swarmraft.estimation import detector_names
-    from swarmraft.experiments.compare import run_compare
+    from swarmraft.experiments.compare import check_out, listed, run_compare
 
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     from swarmraft.experiments.config import attack_names
@@ -452,6 +453,8 @@ def compare_cmd(
     atks = name_list(attacks, "--attacks", attack_names(), "attack")
     config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
     out = out or Path("results") / f"compare-{config.preset}"
+    check_out(out)
+    before = listed(out)
     say = err_console if as_json else console
     say.print(
         f"compare: {', '.join(dets)} on {', '.join(atks)}, preset {config.preset}, "
@@ -467,6 +470,12 @@ def compare_cmd(
         click.echo(json.dumps(json_safe(rows), indent=2))
     for path in written:
         say.print(f"wrote {path}", soft_wrap=True)
+    if dropped := [s for s in before if s not in listed(out)]:
+        say.print(
+            f"note: compare.csv lists this run's sweeps only; it listed {', '.join(dropped)} too, whose "
+            "folders are kept (run compare with them again to table them)",
+            soft_wrap=True,
+        )
 
 
 @main.command()

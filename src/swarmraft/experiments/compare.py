@@ -3,6 +3,7 @@ sweeps that differ only in the detector see exactly the same snapshots."""
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -72,6 +73,28 @@ COMPARE_METRICS = {
 }
 
 
+def check_out(out: Path) -> None:
+    """A ConfigError unless ``out`` is new or a comparison's folder: compare.csv beside a
+    sweep's cells.csv made the folder a comparison, whose sweep figures could then no longer
+    be drawn from it (and beside a mission's, likewise)."""
+    from swarmraft.experiments.results_folder import folder_kind
+
+    if (kind := folder_kind(out)) not in (None, "compare"):
+        raise ConfigError(
+            f"--out {out} is a {kind} folder; a comparison writes a folder of its own: use another --out"
+        )
+
+
+def listed(out: Path) -> list[str]:
+    """The sweeps ('attack/detector') an existing OUT/compare.csv lists, in its order; none if
+    it is missing or unreadable."""
+    try:
+        with open(Path(out) / "compare.csv", newline="") as f:
+            return list(dict.fromkeys(f"{r['attack']}/{r['detector']}" for r in csv.DictReader(f)))
+    except (OSError, KeyError, csv.Error, UnicodeDecodeError):
+        return []
+
+
 def run_compare(
     config: SweepConfig,
     detectors: Sequence[str],
@@ -88,6 +111,7 @@ def run_compare(
     for d in detectors:
         get_detector(d)  # unknown names fail before any work
     out = Path(out)
+    check_out(out)
     results = []
     rows: list[dict] = []
     for attack in attacks:

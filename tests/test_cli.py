@@ -267,6 +267,12 @@ def test_tables_fit_80_columns_with_names_whole_and_abbreviations_explained():
     for abbreviation in ("base", "sem", "med", "p99", ">1m", "hon", "det", "FP"):
         assert abbreviation in _headers(lines)[0] or abbreviation in lines[1]
         assert f"{abbreviation}:" in text or f"{abbreviation}," in text
+    assert not lines[1].rstrip().endswith("und")  # no cell leaves a drone undetermined: no column
+    lines = _render(summary_table({**cells, "undetermined_rate": np.array([0.0, 0.028])}, "realistic"))
+    assert max(map(len, lines)) <= 80 and lines[1].rstrip().endswith("und")
+    assert "2.8%" in "".join(lines[2:5]) and "und: share of the drones left without" in " ".join(
+        " ".join(lines).split()
+    )
     rows = compare_published({**cells, "n": np.array([17, 3]), "f": np.array([8, 1])})
     lines = _render(check_table(rows, "results/reference against the published means", check_legend(3, 0.3)))
     assert max(map(len, lines)) <= 80 and "z = (recovered - published) / sem" in " ".join(

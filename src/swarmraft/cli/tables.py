@@ -40,11 +40,22 @@ SUMMARY_LEGEND = (
 )
 
 
+UNDETERMINED_LEGEND = (
+    " und: share of the drones left without a position (nan: the geometry does not fix them); "
+    "the attacked drones' statistics are over the trials that place them."
+)
+
+
 def summary_table(cells: Mapping[str, np.ndarray], title: str) -> tuple[Table, str]:
-    """A sweep's cells: the paper's metric for the attacked drones, and the rates."""
+    """A sweep's cells: the paper's metric for the attacked drones, and the rates; with a
+    column of undetermined drones where any cell has them (its statistics leave them out)."""
     t = _table(title)
+    und = np.asarray(cells.get("undetermined_rate", np.zeros(len(cells["n"]))), float)
+    shown = bool((und > 0).any())
     for col in ("n", "f", "trials", "base", "mean", "sem", "med", "p99", ">1m", "hon", "det", "FP"):
         t.add_column(col, justify="right", no_wrap=True)
+    if shown:
+        t.add_column("und", justify="right", no_wrap=True)
     for i in range(len(cells["n"])):
         t.add_row(
             str(cells["n"][i]),
@@ -59,8 +70,9 @@ def summary_table(cells: Mapping[str, np.ndarray], title: str) -> tuple[Table, s
             f"{cells['honest_mean'][i]:.3g}",
             _pct(cells["detection_rate"][i]),
             _pct(cells["false_positive_rate"][i]),
+            *([_pct(und[i])] if shown else []),
         )
-    return t, SUMMARY_LEGEND
+    return t, SUMMARY_LEGEND + (UNDETERMINED_LEGEND if shown else "")
 
 
 COMPARE_LEGEND = (

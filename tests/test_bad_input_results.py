@@ -207,6 +207,16 @@ def test_cells_csv_with_a_cell_the_config_does_not_list(ref):
     )
 
 
+def test_trials_csv_cut_at_a_row_boundary_or_emptied(ref):
+    """Cut between two rows, the file still parses: its cells' trial counts give it away."""
+    table = ref / "trials.csv"
+    lines = table.read_text().splitlines(keepends=True)
+    table.write_text("".join(lines[: len(lines) - 3]))
+    fails_cleanly(["figure", "distribution", "ref"], "ref/trials.csv: cell (5, 2) has ", ref.parent)
+    table.write_text(lines[0])
+    fails_cleanly(["figure", "distribution", "ref"], "ref/trials.csv: cells (none: no row) where", ref.parent)
+
+
 def test_trials_csv_with_a_cell_the_config_does_not_list(ref):
     table = ref / "trials.csv"
     header, *rows = table.read_text().splitlines(keepends=True)

@@ -234,7 +234,7 @@ def test_report_bad_input_is_one_line_and_writes_nothing(mission_dir, tmp_path):
         (["report", str(tmp_path / "empty")], f"DIR: {tmp_path / 'empty'} is not a results folder"),
         (["report", str(tmp_path / "nope")], f"DIR: {tmp_path / 'nope'}: no such folder"),
         (["report", str(tmp_path / "a-file")], "is a file, not a results folder"),
-        (["report", str(corrupt)], "summary.json or scenario.json unreadable"),
+        (["report", str(corrupt)], f"{corrupt / 'summary.json'}: unreadable"),
         (["report", str(holder)], "these subfolders are: m1"),
         (["report", str(mission_dir), "--out", str(tmp_path / "r.txt")], "--out: "),
         (["report", str(mission_dir), "--out", str(tmp_path / "empty.html")], "--out: "),

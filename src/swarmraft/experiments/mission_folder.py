@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from swarmraft.estimation.registry import one_line
 from swarmraft.experiments.config import ConfigError
 from swarmraft.experiments.mission import MEMBER_COLUMN, STEP_COLUMNS
 from swarmraft.sim.mission import MissionLog
@@ -50,11 +51,14 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
             f"{option}: {folder} is not a mission folder (no {', '.join(missing)}; "
             "`swarmraft mission` and `swarmraft launch` write one)"
         )
+    name = "summary.json"
     try:
-        summary = json.loads((folder / "summary.json").read_text())
-        scenario = Scenario(**json.loads((folder / "scenario.json").read_text()))
-    except (json.JSONDecodeError, ValidationError, TypeError) as exc:
-        raise ConfigError(f"{option}: {folder}: summary.json or scenario.json unreadable ({exc})") from None
+        summary = json.loads((folder / name).read_text())
+        name = "scenario.json"
+        scenario = Scenario(**json.loads((folder / name).read_text()))
+    except (json.JSONDecodeError, ValidationError, TypeError, UnicodeDecodeError) as exc:
+        why = one_line(exc, "", Scenario) if isinstance(exc, ValidationError) else str(exc)
+        raise ConfigError(f"{option}: {folder / name}: unreadable ({why})") from None
     with (folder / "steps.csv").open(newline="") as fh:
         reader = csv.DictReader(fh)
         wanted = STEP_COLUMNS + ((MEMBER_COLUMN,) if scenario.dynamic else ())

@@ -162,6 +162,14 @@ def load_results(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndar
     trials = read_table(path, TRIAL_COLUMNS, TRIAL_TEXT_COLUMNS) if path.exists() else {}
     if trials:
         _check_cell_set(trials, config, path)
+        # every cell's trials, each once: a file cut at a row boundary still parses
+        for n, f in config.cells():
+            ids = trials["trial"][(trials["n"] == n) & (trials["f"] == f)]
+            if len(ids) != config.trials or len(set(ids.tolist())) != config.trials:
+                raise ConfigError(
+                    f"{path}: cell ({n}, {f}) has {len(ids)} rows ({len(set(ids.tolist()))} trials) where "
+                    f"run.json's config has {config.trials} trials a cell (a cut or edited file?)"
+                )
     return cells, trials, run
 
 
@@ -174,7 +182,8 @@ def _check_cell_set(table: dict[str, np.ndarray], config: SweepConfig, path: Pat
     have = {(int(n), int(f)) for n, f in zip(table["n"], table["f"], strict=True)}
     if have != set(config.cells()):
         raise ConfigError(
-            f"{path}: cells {_cells_text(have)} where run.json's config lists {_cells_text(config.cells())}"
+            f"{path}: cells {_cells_text(have) or '(none: no row)'} where run.json's config lists "
+            f"{_cells_text(config.cells())}"
         )
 
 

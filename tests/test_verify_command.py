@@ -42,6 +42,24 @@ def test_the_table_names_flagged_drones():
     assert r.exit_code == 0, r.output
     flagged = [ln.split()[0] for ln in r.output.splitlines() if "FLAGGED" in ln]
     assert flagged == ["2", "5"]
+    assert "HPL, VPL: horizontal and vertical protection levels (inf: not protected" in " ".join(
+        r.output.split()
+    )
+
+
+def test_paper_on_a_noisy_snapshot_without_a_threshold_says_its_default_is_for_exact_data():
+    """paper's default tau (0.01 m) votes out every honest drone of a snapshot with 1.5/3 m of
+    GNSS noise: the command says so, and not once tau is given."""
+    r = CliRunner().invoke(main, ["verify", str(EXAMPLES / "snapshot.json"), "--detector", "paper"])
+    assert r.exit_code == 0, r.output
+    assert "note: paper's vote threshold tau is 0.01 m by default, for exact data" in " ".join(
+        r.stderr.split()
+    )
+    r = CliRunner().invoke(
+        main, ["verify", str(EXAMPLES / "snapshot.json"), "--detector", "paper", "--param", "tau=8", "--json"]
+    )
+    assert r.exit_code == 0 and "note:" not in r.stderr
+    assert [d["drone"] for d in json.loads(r.stdout)["drones"] if d["flagged"]] == [2, 5]
 
 
 def test_bad_snapshot_files_are_one_line(tmp_path, monkeypatch):

@@ -9,7 +9,7 @@ import click
 import numpy as np
 from rich.table import Table
 
-from swarmraft.cli.app import console, main
+from swarmraft.cli.app import console, err_console, main
 from swarmraft.cli.options import key_values
 
 
@@ -50,6 +50,7 @@ def verify_command(
     it is flagged, its verified position, its status and its protection levels.
     """
     from swarmraft.estimation import verify
+    from swarmraft.estimation.paper import PaperParams
     from swarmraft.experiments.snapshot_file import read_snapshot
 
     snap = read_snapshot(snapshot, gnss_sigma=_pair(gnss_sigma, "--gnss-sigma"), range_sigma=range_sigma)
@@ -59,6 +60,15 @@ def verify_command(
             f"{snapshot} gives no noise model and {detector} needs one: "
             "give --range-sigma (and --gnss-sigma H,V)",
             param_hint="--range-sigma",
+        )
+    if detector == "paper" and "tau" not in extra and max(snap.gnss_sigma or (0.0,)) > 0:
+        # paper's default threshold is the exact-data one: on noisy reports it votes every
+        # honest drone out
+        err_console.print(
+            f"note: paper's vote threshold tau is {PaperParams().tau:g} m by default, for exact data; "
+            f"this snapshot's GNSS sigma is {', '.join(f'{s:g}' for s in snap.gnss_sigma)} m: give "
+            "--param tau=... --param epsilon=... (`swarmraft calibrate` derives them for a noise level)",
+            soft_wrap=True,
         )
     v = verify(snap, detector, **extra)
     n = len(v.faulty)
@@ -102,5 +112,6 @@ def verify_command(
             fmt(v.vpl[i]),
         )
     console.print(table)
-    console.print("m, local ENU. HPL, VPL: horizontal and vertical protection levels")
-    console.print("(inf: position not determined; nan: no noise model). Statuses: docs/detectors.md.")
+    console.print("m, local ENU; x, y, z nan: position not determined. HPL, VPL: horizontal and")
+    console.print("vertical protection levels (inf: not protected, the position cannot be checked;")
+    console.print("nan: the detector has no noise model). Statuses: docs/detectors.md.")

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -195,6 +196,19 @@ def test_compare_and_curves(tmp_path):
         pd = {o: p for d, o, p in off if d == det}
         assert pd[30.0] >= pd[5.0]
     assert (tmp_path / "cur" / "roc.png").exists()
+    # the chosen thresholds and what they detect, printed: the numbers of curves.csv
+    text = " ".join(r.output.split())
+    for det in ("clique", "fde"):
+        k = (c["detector"] == det) & (c["kind"] == "offset")
+        thr, param = c["threshold"][k][0], c["parameter"][k][0]
+        fa = np.mean(c["false_alarm"][k])
+        assert (
+            f"{det}: {param} = {thr:.4g} (false alarms <= 1.0% in the ROC's trials; {fa:.1%} in the offset"
+            in text
+        )
+        pd = dict(zip(c["offset"][k], c["detection"][k], strict=True))
+        half = "5 m" if pd[5.0] >= 0.5 else "30 m" if pd[30.0] >= 0.5 else "not reached by 30 m"
+        assert f"{det}: " in text and f"detected in half the trials from {half}" in text.split(f"{det}: ")[1]
     bad = CliRunner().invoke(main, ["compare", "--attacks", "teleport", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "unknown attack 'teleport'" in bad.output
 

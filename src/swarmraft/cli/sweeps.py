@@ -575,6 +575,8 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
             config, dets, n, f, trials, offs, false_alarm, roc_offset, start(total, 0), attack
         )
     write_rows(out / "curves.csv", CURVE_COLUMNS, [p.__dict__ for p in points])
+    for line in curve_lines(points, false_alarm):
+        print_wrapped(line)
     title = f"preset {preset}, {attack}, n = {n}, f = {f}, {trials} trials per point"
     console.print(f"wrote {out / 'curves.csv'}", soft_wrap=True)
     console.print(f"wrote {viz.roc(points, out / 'roc.png', title)}", soft_wrap=True)
@@ -582,6 +584,29 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
         f"wrote {viz.detection_vs_offset(points, out / 'detection_vs_offset.png', false_alarm, title)}",
         soft_wrap=True,
     )
+
+
+def curve_lines(points: list, false_alarm: float) -> list[str]:
+    """One line per detector: the threshold the offset curve uses (the best detection with
+    false alarms at most ``false_alarm`` in the ROC's trials), the false alarms measured at it
+    in the offset trials, and the smallest offsets detected half and 90 % of the time."""
+    out = []
+    for det in dict.fromkeys(p.detector for p in points):
+        pts = sorted((p for p in points if p.detector == det and p.kind == "offset"), key=lambda p: p.offset)
+        if not pts:
+            continue
+
+        def first(share: float, pts: list = pts) -> str:
+            hit = next((p.offset for p in pts if p.detection >= share), None)
+            return f"{hit:g} m" if hit is not None else f"not reached by {pts[-1].offset:g} m"
+
+        fa = float(np.mean([p.false_alarm for p in pts]))
+        out.append(
+            f"{det}: {pts[0].parameter} = {pts[0].threshold:.4g} (false alarms <= {false_alarm:.1%} in the "
+            f"ROC's trials; {fa:.1%} in the offset trials); detected in half the trials from {first(0.5)}, "
+            f"in 90 % from {first(0.9)} (of the offsets tried)"
+        )
+    return out
 
 
 @main.command()

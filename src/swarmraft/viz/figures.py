@@ -464,15 +464,15 @@ def detection_vs_offset(points: Sequence, path: Path, false_alarm: float, title:
             (p.offset, p.detection, p.false_alarm) for p in points if p.detector == det and p.kind == "offset"
         )
         off, pd, fa = zip(*pts, strict=True)
-        ax.plot(off, pd, "o-", label=f"{det} (false alarms {np.mean(fa):.1%})")
+        ax.plot(off, pd, "o-", label=f"{det} (false alarms here {np.mean(fa):.1%})")
     ax.set_xlabel("spoof offset, m")
     ax.set_ylabel("detection probability")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(True, ls=":", alpha=0.6)
     ax.legend()
     ax.set_title(
-        f"Detection against offset, thresholds for false alarms <= {false_alarm:.1%}"
-        f"{chr(10) + title if title else ''}",
+        f"Detection against offset; each threshold: false alarms <= {false_alarm:.1%} in the ROC's"
+        f" trials\n(legend: the false-alarm rate measured in these trials){chr(10) + title if title else ''}",
         fontsize=10,
     )
     return _save(fig, path)

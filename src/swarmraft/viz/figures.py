@@ -42,11 +42,18 @@ def _per_cell(counts: Sequence[int]) -> str:
     return f"{lo}" if lo == hi else f"{lo}-{hi}"
 
 
+class _PlainLog(LogFormatter):
+    """matplotlib's choice of which log ticks to label, each written as a plain number."""
+
+    def _num_to_string(self, x: float, vmin: float, vmax: float) -> str:
+        return f"{x:g}"
+
+
 def plain_log_labels(axis) -> None:
-    """A log axis labelled 0.5, 2, 30, 400 rather than 5x10^-1, 2x10^0, 3x10^1, 4x10^2 (the
-    same ticks matplotlib picks)."""
-    axis.set_major_formatter(LogFormatter())
-    axis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2.5, 0.5)))
+    """A log axis labelled 0.1, 2, 30, 400 rather than 10^-1, 2x10^0, 3x10^1, 4x10^2 (the
+    same ticks matplotlib picks; minor ones labelled over up to 2.5 decades)."""
+    axis.set_major_formatter(_PlainLog())
+    axis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2.5, 0.5)))
 
 
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
@@ -82,15 +89,15 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
         for ni, fi, r in zip(n[order], f[order], rec, strict=True):
             if not r > 0:
                 continue
-            ax.annotate(  # right of the point: clear of the y axis's labels
+            ax.annotate(  # left of the point: the published means are drawn right of it
                 f"({ni},{fi})",
                 (ni, r),
                 textcoords="offset points",
-                xytext=(6, -14),
-                ha="left",
+                xytext=(-6, -14),
+                ha="right",
                 fontsize=9,
             )
-        ax.margins(x=0.12)  # room for the last one's
+        ax.margins(x=0.12)  # room for the first one's, clear of the y axis's labels
     else:
         for fi in np.unique(f):
             sel = order[f[order] == fi]

@@ -120,6 +120,7 @@ def test_resume_without_run_json_reuses_cells_of_the_same_seed(ref):
     assert r.exit_code == 0, r.output
     assert "reused 2 finished cells" in r.output
     assert "0/0" not in r.output  # nothing left to run: no empty progress bar
+    assert "nothing to run: every cell was already finished" in r.output
     assert (ref / "cells.csv").read_bytes() == cells
 
 

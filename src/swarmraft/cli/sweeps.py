@@ -139,7 +139,10 @@ def sweep(
     print_table(summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
     if line := calibration_line(out):
         console.print(line)
-    console.print(f"done in {result.seconds:.1f} s on {result.executor}")
+    if result.computed:
+        console.print(f"done in {result.seconds:.1f} s on {result.executor}")
+    else:
+        console.print("nothing to run: every cell was already finished")
     for p in result.paths:
         console.print(f"  wrote {p}", soft_wrap=True)
 
@@ -153,10 +156,13 @@ def calibration_line(out: Path) -> str | None:
         return None
     taus = [c["tau"] for c in cal.values()]
     eps = [c["epsilon"] for c in cal.values()]
+
+    def span(v: list[float]) -> str:
+        return f"{min(v):.2f}" if f"{min(v):.2f}" == f"{max(v):.2f}" else f"{min(v):.2f}-{max(v):.2f}"
+
     return (
         f"thresholds calibrated from honest runs (paper III.E, mu + 3 sigma) for n = "
-        f"{', '.join(sorted(cal, key=int))}: tau {min(taus):.2f}-{max(taus):.2f} m, "
-        f"epsilon {min(eps):.2f}-{max(eps):.2f} m"
+        f"{', '.join(sorted(cal, key=int))}: tau {span(taus)} m, epsilon {span(eps)} m"
     )
 
 
@@ -318,7 +324,7 @@ def check(results, as_json) -> None:
     Passes when every recovered mean is within 3 standard errors of the published one and
     every baseline within 0.3 m; exits 1 otherwise.
     """
-    from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, compare_published
+    from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, PUBLISHED, compare_published
     from swarmraft.experiments.sweep import load_results
 
     cells, _, run = load_results(Path(results))
@@ -345,6 +351,11 @@ def check(results, as_json) -> None:
     console.print(
         f"criteria: |z| <= {MAX_Z}, baseline within {MAX_BASELINE_GAP} m: "
         + ("all cells pass" if not bad else f"{len(bad)} cell(s) fail")
+        + (
+            f" ({len(rows)} of the paper's {len(PUBLISHED)} published cells in this folder)"
+            if len(rows) < len(PUBLISHED)
+            else ""
+        )
     )
     sys.exit(1 if bad else 0)
 

@@ -108,7 +108,9 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
                 label=f"verified, f = {fi}",
             )
         base = [cells["baseline_mean"][n == ni].mean() for ni in np.unique(n)]
-        ax.plot(np.unique(n), base, "s--", color="red", label="reported (baseline)")
+        ax.plot(
+            np.unique(n), base, "s--", color="red", label="reported (baseline, mean over the f of each n)"
+        )
     zero = np.asarray(cells["recovered_mean"]) <= 0
     for ni, fi in zip(n[zero], f[zero], strict=True):  # a log axis cannot draw 0: say so
         ax.annotate(
@@ -304,7 +306,8 @@ def recovery(
         row[0].set_title(
             f"n = {n}, f = {f}: mean error of attacked drones\n"
             f"reported {np.linalg.norm(rep - truth, axis=1)[att].mean():.1f} m, "
-            f"verified {err:.2g} m; failed recoveries (limit {limit:.3g} m): {int(failed.sum())} of {f}",
+            f"verified {err:.2g} m; failed recoveries: {int(failed.sum())} of {f}\n(limit {limit:.3g} m: "
+            "3x the honest reports' rms error, at least 1 m)",
             fontsize=10,
         )
     handles, labels = [], []

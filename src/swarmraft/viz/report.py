@@ -575,7 +575,10 @@ def sweep_report(
         "<h2>Runs that computed cells</h2>" + row_table(_runs_rows(run), RUN_COLUMNS, "runs"),
         "<h2>Detector parameters per n</h2>"
         + key_table(
-            ((n, f"n = {n}", p or "defaults") for n, p in (run.get("detector_params") or {}).items()),
+            (
+                (n, f"n = {n}", p or "defaults")
+                for n, p in sorted((run.get("detector_params") or {}).items(), key=lambda kv: int(kv[0]))
+            ),
             "detector-params",
         ),
     ]

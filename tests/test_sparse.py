@@ -203,3 +203,32 @@ def test_joint_rejudges_range_tampering_where_gnc_folded_a_cluster():
     v = verify_batch(batch, "joint")
     assert not (v.faulty & ~d.attackers[rows]).any()
     assert (v.faulty == d.attackers[rows]).all()
+
+
+def test_candidate_sets_are_those_of_the_graph_networkx_builds_from_the_matrix():
+    """`clique.candidate_sets` builds its graph edge by edge (a quarter of
+    nx.from_numpy_array's cost): the same maximal cliques in the same order, so the same
+    candidates and the same cap, on bool, 0/1 float and asymmetric matrices, self-loops too."""
+    from itertools import islice
+
+    import networkx as nx
+
+    from swarmraft.estimation.clique import candidate_sets
+
+    rng = np.random.default_rng(3)
+    for k in range(150):
+        n = int(rng.integers(3, 18))
+        adj = rng.random((n, n)) < rng.random()
+        if k % 3:
+            adj = adj | adj.T
+        np.fill_diagonal(adj, rng.random() < 0.5)
+        given = adj.astype(float) if k % 5 == 0 else adj
+        cap = int(rng.integers(1, 6)) if k % 4 == 0 else None
+        found = nx.find_cliques(nx.from_numpy_array(adj.astype(np.int8)))
+        found = list(found if cap is None else islice(found, cap + 1))
+        want = sorted((frozenset(c) for c in found[:cap]), key=len, reverse=True)
+        f_max = n // 2
+        assert candidate_sets(given, f_max, cap) == (
+            [c for c in want if n - len(c) <= f_max],
+            cap is not None and len(found) > cap,
+        ), k

@@ -75,7 +75,8 @@ def candidate_sets(adj: np.ndarray, f_max: int, cap: int | None = None) -> tuple
     # find_cliques ignores the diagonal), a quarter of its cost at n = 17
     g = nx.Graph()
     g.add_nodes_from(range(n))
-    i, j = np.nonzero(np.triu(adj | adj.T, 1))  # an edge either way, as nx makes it
+    a = np.asarray(adj) != 0  # any nonzero entry an edge, as nx reads a matrix
+    i, j = np.nonzero(np.triu(a | a.T, 1))  # an edge either way, as nx makes it
     g.add_edges_from(zip(i.tolist(), j.tolist(), strict=True))
     found = list(nx.find_cliques(g) if cap is None else islice(nx.find_cliques(g), cap + 1))
     capped = cap is not None and len(found) > cap

@@ -152,3 +152,16 @@ def test_a_known_set_sweep_gives_the_estimator_the_true_honest_set(tmp_path):
     assert known["baseline_mean"][0] == found["baseline_mean"][0]  # the same draws
     with pytest.raises(ConfigError, match="^known_set: detector 'paper' has no noise model"):
         small("realistic", known_set=True)
+
+
+def test_a_flag_sets_its_own_keys_of_a_config_files_table(tmp_path):
+    """`--attack jump` with a --config file's [attack] low/high kept them (the flag replaced
+    the whole table, and the spoofs were 10-100 m instead of the file's 40-50 m)."""
+    from swarmraft.cli.options import sweep_config
+
+    path = tmp_path / "c.toml"
+    path.write_text("[attack]\nlow = 40.0\nhigh = 50.0\n")
+    cfg = sweep_config("realistic", path, "7", "1", False, 10, None, {"attack": {"name": "jump"}})
+    assert (cfg.attack.name, cfg.attack.low, cfg.attack.high) == ("jump", 40.0, 50.0)
+    cfg = sweep_config("realistic", path, "7", "1", False, 10, None, {"attack": {"name": "range-bias"}})
+    assert (cfg.attack.name, cfg.attack.low) == ("range-bias", 40.0)

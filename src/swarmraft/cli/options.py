@@ -184,8 +184,12 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
         **extra,
     }
     flags = {k: v for k, v in overrides.items() if v is not None}
+    merged = dict(settings)
+    for key, val in flags.items():  # a flag sets its own keys of a table, not the whole table
+        both = isinstance(val, dict) and isinstance(merged.get(key), dict)
+        merged[key] = {**merged[key], **val} if both else val
     try:
-        return build_config(preset, **{**settings, **flags})
+        return build_config(preset, **merged)
     except ConfigError as exc:
         # a field the file set (and no flag overrode) is named with the file it came from; one
         # a flag set, with the flag

@@ -294,6 +294,7 @@ def test_other_commands_check_the_same_options(cwd, args, needle):
             [],
             "spoof[0].magnitud: unknown parameter (did you mean magnitude?)",
         ),
+        ("[gnss]\nsigm = 2\n", [], "gnss.sigm: unknown parameter (did you mean sigma_h or sigma_v?)"),
         (
             '[protocol]\ndetector = "joint"\ndetector_params = {c_gnss = 5.0}\n',
             ["--detector", "paper"],

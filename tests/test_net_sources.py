@@ -272,6 +272,12 @@ def test_the_swarm_file_selects_each_drones_source_and_writes_it_back(tmp_path):
         (SWARM + MAVLINK, "drones.2.source: a mavlink source needs the swarm's [origin]"),
         (SWARM + MAVLINK.replace("127.0.0.1:14650", "radio:1") + ORIGIN, "drones.2.source.ranges: 'radio'"),
         (SWARM + MAVLINK + ORIGIN.replace("55.7", "95.0"), "origin.lat_deg: Input should be less than"),
+        # a misspelt key inside a drone's table and inside its source: a close key offered
+        (SWARM.replace("bind =", "bnd =", 1), "drones.1.bnd: unknown parameter (did you mean bind?)"),
+        (
+            SWARM.replace('log = "logs', 'lg = "x"\nlog = "logs'),
+            "drones.1.source.lg: unknown parameter (did you mean log?)",
+        ),
     ],
 )
 def test_a_bad_source_in_the_swarm_file_is_one_line_naming_the_field(tmp_path, text, words):

@@ -600,7 +600,8 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
 def curve_lines(points: list, false_alarm: float) -> list[str]:
     """One line per detector: the threshold the offset curve uses (the best detection with
     false alarms at most ``false_alarm`` in the ROC's trials), the false alarms measured at it
-    in the offset trials, and the smallest offsets detected half and 90 % of the time."""
+    in the offset trials, and the smallest offsets at which half and 90 % of the attacked
+    drones are flagged."""
     out = []
     for det in dict.fromkeys(p.detector for p in points):
         pts = sorted((p for p in points if p.detector == det and p.kind == "offset"), key=lambda p: p.offset)
@@ -614,8 +615,8 @@ def curve_lines(points: list, false_alarm: float) -> list[str]:
         fa = float(np.mean([p.false_alarm for p in pts]))
         out.append(
             f"{det}: {pts[0].parameter} = {pts[0].threshold:.4g} (false alarms <= {false_alarm:.1%} in the "
-            f"ROC's trials; {fa:.1%} in the offset trials); detected in half the trials from {first(0.5)}, "
-            f"in 90 % from {first(0.9)} (of the offsets tried)"
+            f"ROC's trials; {fa:.1%} in the offset trials); half the attacked drones flagged from "
+            f"{first(0.5)}, 90 % from {first(0.9)} (of the offsets tried)"
         )
     return out
 

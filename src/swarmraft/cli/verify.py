@@ -67,7 +67,8 @@ def verify_command(
         err_console.print(
             f"note: paper's vote threshold tau is {PaperParams().tau:g} m by default, for exact data; "
             f"this snapshot's GNSS sigma is {', '.join(f'{s:g}' for s in snap.gnss_sigma)} m: give "
-            "--param tau=... --param epsilon=... (`swarmraft calibrate` derives them for a noise level)",
+            "--param tau=... --param epsilon=... (`swarmraft calibrate --preset realistic` prints them for "
+            "GNSS 1.5/3 m and ranges of 0.1 m)",
             soft_wrap=True,
         )
     v = verify(snap, detector, **extra)

@@ -126,28 +126,44 @@ def one_line(
 
 
 def _close_key(model: type[BaseModel] | None, loc: tuple) -> str:
-    """' (did you mean X?)' for the unknown key at ``loc`` of ``model``, if one is close."""
-    for key in loc[:-1]:  # down to the model that holds the key
-        if model is None:
-            return ""
-        if isinstance(key, int):
-            continue
-        field = model.model_fields.get(str(key))
-        model = _model_in(field.annotation) if field is not None else None
+    """' (did you mean X?)' for the unknown key at ``loc`` of ``model``, if one is close (two
+    equally close: both)."""
     if model is None or not loc or isinstance(loc[-1], int):
         return ""
-    close = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1)
-    return f" (did you mean {close[0]}?)" if close else ""
+    models = [model]
+    for key in loc[:-1]:  # down to the models that may hold the key
+        if isinstance(key, int) or str(key).isdigit():  # a list index, or a table keyed by id
+            continue
+        fields = [m.model_fields[str(key)] for m in models if str(key) in m.model_fields]
+        if fields:
+            models = [m for f in fields for m in _models_in(f.annotation)]
+        else:  # a tagged union's tag: the member it names, if one does
+            models = [m for m in models if str(key) in _tags(m)] or models
+        if not models:
+            return ""
+    names = list(dict.fromkeys(name for m in models for name in m.model_fields))
+    scores = {n: difflib.SequenceMatcher(None, str(loc[-1]), n).ratio() for n in names}
+    best = max(scores.values(), default=0.0)
+    close = [n for n, r in scores.items() if r == best and r >= 0.6]
+    return f" (did you mean {' or '.join(close)}?)" if close else ""
 
 
-def _model_in(annotation: Any) -> type[BaseModel] | None:
-    """The pydantic model an annotation holds (itself, or inside list[...], X | None ...)."""
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation holds (itself, or inside list[...], dict[..., X],
+    X | None, a union of models ...)."""
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in typing.get_args(annotation):
-        if found := _model_in(arg):
-            return found
-    return None
+        return [annotation]
+    return [m for arg in typing.get_args(annotation) for m in _models_in(arg)]
+
+
+def _tags(model: type[BaseModel]) -> tuple:
+    """The values a tagged union's members tell themselves apart by (their Literal fields)."""
+    return tuple(
+        v
+        for f in model.model_fields.values()
+        if typing.get_origin(f.annotation) is typing.Literal
+        for v in typing.get_args(f.annotation)
+    )
 
 
 def _unknown_hint(name: str, unknown: list[str]) -> str:

@@ -577,7 +577,14 @@ def sweep_report(
         + key_table(
             (
                 (n, f"n = {n}", p or "defaults")
-                for n, p in sorted((run.get("detector_params") or {}).items(), key=lambda kv: int(kv[0]))
+                for n, p in sorted(
+                    (run.get("detector_params") or {}).items(),
+                    key=lambda kv: (
+                        not str(kv[0]).isdigit(),
+                        int(kv[0]) if str(kv[0]).isdigit() else 0,
+                        str(kv[0]),
+                    ),
+                )
             ),
             "detector-params",
         ),

@@ -361,3 +361,28 @@ def test_scaling_draws_tiny_means_where_they_are_not_at_a_floor(drawn):
     (rec,) = [c for c in ax.containers if c.get_label().startswith("verified")]
     assert rec.lines[0].get_ydata()[0] == 6.8e-15
     assert "(9,4): mean 0 m" in [x.get_text() for x in ax.texts]
+
+
+def test_scaling_with_several_f_per_n_draws_each_fs_interval_beside_the_others(drawn):
+    n, f = np.array([9, 9, 13, 13]), np.array([2, 4, 2, 4])
+    cells = {
+        "n": n,
+        "f": f,
+        "trials": np.full(4, 100),
+        "preset": np.array(["realistic"] * 4),
+        "detector": np.array(["joint"] * 4),
+        "attack": np.array(["jump"] * 4),
+        "baseline_mean": np.full(4, 55.0),
+        "baseline_sem": np.full(4, 1.0),
+        "recovered_mean": np.array([1.9, 2.9, 1.4, 1.6]),
+        "recovered_sem": np.array([0.1, 0.4, 0.05, 0.1]),
+    }
+    viz.scaling(cells, "x.png")
+    ax = drawn[0].axes[0]
+    bars = {c.get_label(): c for c in ax.containers if c.get_label().startswith("verified")}
+    assert sorted(bars) == ["verified, f = 2", "verified, f = 4"]
+    x2, x4 = (bars[k].lines[0].get_xdata() for k in sorted(bars))
+    assert (x2 < x4).all() and np.allclose(x4 - x2, 0.12)  # apart, not on top of each other
+    seg = bars["verified, f = 4"].lines[2][0].get_segments()[0]  # the first point's bar
+    assert np.allclose([seg[0][1], seg[1][1]], [2.9 - 1.96 * 0.4, 2.9 + 1.96 * 0.4])
+    assert ax.get_legend().get_bbox_to_anchor().x0 >= ax.get_window_extent().x1 - 1  # beside the axes

@@ -59,7 +59,8 @@ def plain_log_labels(axis) -> None:
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     """Mean error of the attacked drones against n on a log axis: reports (baseline) and
     verified positions, annotated (n, f); one recovered curve per f when the grid has several
-    f per n. Error bars: 95 % intervals (1.96 standard errors of the mean). For the reference
+    f per n (each f drawn a little apart). Error bars: 95 % intervals (1.96 standard errors of
+    the mean). For the reference
     preset, the paper's published means (its n = 2f+1 cells) are drawn beside ours."""
     from swarmraft.experiments.published import PUBLISHED
 
@@ -99,12 +100,19 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
             )
         ax.margins(x=0.12)  # room for the first one's, clear of the y axis's labels
     else:
-        for fi in np.unique(f):
+        fs = np.unique(f)
+        for k, fi in enumerate(fs):
             sel = order[f[order] == fi]
-            ax.plot(
-                n[sel],
-                np.where(cells["recovered_mean"][sel] > 0, cells["recovered_mean"][sel], np.nan),
-                "o-",
+            rec = np.where(cells["recovered_mean"][sel] > 0, cells["recovered_mean"][sel], np.nan)
+            half = 1.96 * np.asarray(cells["recovered_sem"][sel], float)
+            # 95 % intervals as on the diagonal, each f a little apart so the bars do not
+            # overlap; on a log axis the lower bar stops above 0
+            ax.errorbar(
+                n[sel] + 0.12 * (k - (len(fs) - 1) / 2),
+                rec,
+                yerr=np.vstack([np.minimum(np.nan_to_num(half), 0.999 * rec), np.nan_to_num(half)]),
+                fmt="o-",
+                capsize=2,
                 label=f"verified, f = {fi}",
             )
         base = [cells["baseline_mean"][n == ni].mean() for ni in np.unique(n)]
@@ -155,7 +163,11 @@ def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:
     ax.set_ylabel("mean error of attacked drones, m (log)")
     ax.set_xticks(np.unique(n))
     ax.grid(True, which="both", ls=":", alpha=0.6)
-    ax.legend()
+    if diagonal:
+        ax.legend()
+    else:  # a curve per f: a long legend, beside the axes rather than over the curves
+        fig.set_size_inches(10, 5)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=9)
     per_cell = _per_cell([int(t) for t in cells["trials"]])
     ax.set_title(f"Error against swarm size\n{_title(cells)}, {per_cell} trials per cell", fontsize=10)
     return _save(fig, path)

@@ -406,3 +406,15 @@ def test_integrity_figure_counts_the_verdicts_it_cannot_draw(results, tmp_path):
     assert r.exit_code == 0, r.output
     png = out / "figures" / "integrity.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and str(png) in r.output
+
+
+def test_calibrate_on_a_preset_that_does_not_calibrate_says_so_before_its_table():
+    """The reference preset's honest residuals are exactly 0 (a table of zeros), and its sweeps
+    use the detector's own thresholds: said first, so the zeros are not read as the thresholds."""
+    r = CliRunner().invoke(main, ["calibrate", "--preset", "reference", "--n", "5", "--trials", "10"])
+    assert r.exit_code == 0, r.output
+    first = " ".join(r.output.split("calibration, preset reference")[0].split())
+    assert (
+        "preset reference does not calibrate (calibrate = false): its sweeps use the paper "
+        "detector's tau 0.01 m" in first
+    )

@@ -508,17 +508,18 @@ def calibrate(preset, n_text, trials, seed) -> None:
 
     ns = swarm_sizes(n_text)
     config = build_config(preset, n=ns, seed=seed, calibration_trials=trials)
-    rows = [(n, calibrate_cell(config, n)) for n in ns]
-    print_table(calibration_table(rows, f"calibration, preset {preset}, {trials} honest snapshots"))
-    if not config.calibrate:  # the zeros above are right, and not what its sweeps use
+    if not config.calibrate:  # the table's zeros are right, and not what its sweeps use: said first
         from swarmraft.estimation import detector_params
 
         p = detector_params(config.detector, **config.detector_params)
         console.print(
             f"preset {preset} does not calibrate (calibrate = false): its sweeps use the "
-            f"{config.detector} detector's tau {p.tau:g} m and epsilon {p.epsilon:g} m",
+            f"{config.detector} detector's tau {p.tau:g} m and epsilon {p.epsilon:g} m; what "
+            "its honest snapshots would give:",
             soft_wrap=True,
         )
+    rows = [(n, calibrate_cell(config, n)) for n in ns]
+    print_table(calibration_table(rows, f"calibration, preset {preset}, {trials} honest snapshots"))
 
 
 @main.command()

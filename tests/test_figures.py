@@ -90,20 +90,26 @@ def test_roc_points_are_sorted_by_false_alarm_and_the_threshold_is_named(drawn):
     )
 
 
+def _scaling_cells(n, f, preset, detector, baseline, recovered, sem) -> dict:
+    """A sweep's cells as `viz.scaling` reads them: (n, f) cells of 100 jump trials each."""
+    k = len(n)
+    return {
+        "n": np.asarray(n),
+        "f": np.asarray(f),
+        "trials": np.full(k, 100),
+        "preset": np.array([preset] * k),
+        "detector": np.array([detector] * k),
+        "attack": np.array(["jump"] * k),
+        "baseline_mean": np.full(k, baseline),
+        "baseline_sem": np.full(k, 0.1),
+        "recovered_mean": np.array(recovered, float),
+        "recovered_sem": np.broadcast_to(np.asarray(sem, float), (k,)).copy(),
+    }
+
+
 def test_reference_scaling_shows_the_published_means(drawn):
     n = np.array([3, 5, 7])
-    cells = {
-        "n": n,
-        "f": (n - 1) // 2,
-        "trials": np.full(3, 100),
-        "preset": np.array(["reference"] * 3),
-        "detector": np.array(["paper"] * 3),
-        "attack": np.array(["jump"] * 3),
-        "baseline_mean": np.full(3, 28.8),
-        "baseline_sem": np.full(3, 0.1),
-        "recovered_mean": np.array([19.0, 5.0, 2.0]),
-        "recovered_sem": np.full(3, 0.1),
-    }
+    cells = _scaling_cells(n, (n - 1) // 2, "reference", "paper", 28.8, [19.0, 5.0, 2.0], 0.1)
     viz.scaling(cells, "x.png")
     ax = drawn[0].axes[0]
     (pub,) = [ln for ln in ax.lines if ln.get_label().startswith("published, verified")]
@@ -344,18 +350,7 @@ def test_curve_points_name_their_threshold_parameter():
 
 def test_scaling_draws_tiny_means_where_they_are_not_at_a_floor(drawn):
     n = np.array([7, 9])
-    cells = {
-        "n": n,
-        "f": (n - 1) // 2,
-        "trials": np.full(2, 100),
-        "preset": np.array(["realistic"] * 2),
-        "detector": np.array(["paper"] * 2),
-        "attack": np.array(["jump"] * 2),
-        "baseline_mean": np.full(2, 28.8),
-        "baseline_sem": np.full(2, 0.1),
-        "recovered_mean": np.array([6.8e-15, 0.0]),
-        "recovered_sem": np.full(2, 1e-16),
-    }
+    cells = _scaling_cells(n, (n - 1) // 2, "realistic", "paper", 28.8, [6.8e-15, 0.0], 1e-16)
     viz.scaling(cells, "x.png")
     ax = drawn[0].axes[0]
     (rec,) = [c for c in ax.containers if c.get_label().startswith("verified")]
@@ -365,18 +360,7 @@ def test_scaling_draws_tiny_means_where_they_are_not_at_a_floor(drawn):
 
 def test_scaling_with_several_f_per_n_draws_each_fs_interval_beside_the_others(drawn):
     n, f = np.array([9, 9, 13, 13]), np.array([2, 4, 2, 4])
-    cells = {
-        "n": n,
-        "f": f,
-        "trials": np.full(4, 100),
-        "preset": np.array(["realistic"] * 4),
-        "detector": np.array(["joint"] * 4),
-        "attack": np.array(["jump"] * 4),
-        "baseline_mean": np.full(4, 55.0),
-        "baseline_sem": np.full(4, 1.0),
-        "recovered_mean": np.array([1.9, 2.9, 1.4, 1.6]),
-        "recovered_sem": np.array([0.1, 0.4, 0.05, 0.1]),
-    }
+    cells = _scaling_cells(n, f, "realistic", "joint", 55.0, [1.9, 2.9, 1.4, 1.6], [0.1, 0.4, 0.05, 0.1])
     viz.scaling(cells, "x.png")
     ax = drawn[0].axes[0]
     bars = {c.get_label(): c for c in ax.containers if c.get_label().startswith("verified")}

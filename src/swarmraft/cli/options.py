@@ -169,7 +169,7 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
     """A validated SweepConfig from a preset, an optional TOML file and command-line flags
     (flags override the file, the file overrides the preset)."""
     from swarmraft.experiments import ConfigError, build_config
-    from swarmraft.experiments.config import read_toml
+    from swarmraft.experiments.config import merged, read_toml
 
     settings: dict[str, Any] = {}
     if config_file is not None:
@@ -184,12 +184,8 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
         **extra,
     }
     flags = {k: v for k, v in overrides.items() if v is not None}
-    merged = dict(settings)
-    for key, val in flags.items():  # a flag sets its own keys of a table, not the whole table
-        both = isinstance(val, dict) and isinstance(merged.get(key), dict)
-        merged[key] = {**merged[key], **val} if both else val
-    try:
-        return build_config(preset, **merged)
+    try:  # a flag sets its own keys of a file's table, not the whole table
+        return build_config(preset, **merged(settings, flags))
     except ConfigError as exc:
         # a field the file set (and no flag overrode) is named with the file it came from; one
         # a flag set, with the flag

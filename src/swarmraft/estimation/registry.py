@@ -176,8 +176,7 @@ def _unknown_hint(name: str, unknown: list[str]) -> str:
     others = [d for d in detector_names() if d != name and key in get_detector(d).params.model_fields]
     if others:
         return f" ({key} is a parameter of {', '.join(others)}: choose one of them as the detector)"
-    close = difflib.get_close_matches(key, list(get_detector(name).params.model_fields), n=1)
-    return f" (did you mean {close[0]}?)" if close else ""
+    return _close_key(get_detector(name).params, (key,))
 
 
 def detector_params(name: str, **params: Any) -> BaseModel:

@@ -3,7 +3,6 @@ sweeps that differ only in the detector see exactly the same snapshots."""
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from swarmraft.estimation import get_detector
 from swarmraft.experiments.config import ConfigError, SweepConfig
 from swarmraft.experiments.metrics import CELL_COLUMNS, sem
 from swarmraft.experiments.sweep import CELL_TEXT_COLUMNS, SweepResult, read_run, run_sweep
-from swarmraft.experiments.tables import read_table, write_rows
+from swarmraft.experiments.tables import TableError, read_table, write_rows
 
 #: standard errors of the compared metrics that cells.csv does not hold, computed per cell
 #: from the sweep's trials.csv (recovered_sem is in cells.csv already)
@@ -74,25 +73,20 @@ COMPARE_METRICS = {
 
 
 def check_out(out: Path) -> None:
-    """A ConfigError unless ``out`` is new or a comparison's folder: compare.csv beside a
-    sweep's cells.csv made the folder a comparison, whose sweep figures could then no longer
-    be drawn from it (and beside a mission's, likewise)."""
-    from swarmraft.experiments.results_folder import folder_kind
+    """A ConfigError unless ``out`` is new or a comparison's folder (`require_own`)."""
+    from swarmraft.experiments.results_folder import require_own
 
-    if (kind := folder_kind(out)) not in (None, "compare"):
-        raise ConfigError(
-            f"--out {out} is a {kind} folder; a comparison writes a folder of its own: use another --out"
-        )
+    require_own(out, "compare", "a comparison")
 
 
 def listed(out: Path) -> list[str]:
     """The sweeps ('attack/detector') an existing OUT/compare.csv lists, in its order; none if
     it is missing or unreadable."""
     try:
-        with open(Path(out) / "compare.csv", newline="") as f:
-            return list(dict.fromkeys(f"{r['attack']}/{r['detector']}" for r in csv.DictReader(f)))
-    except (OSError, KeyError, csv.Error, UnicodeDecodeError):
+        t = read_table(Path(out) / "compare.csv", ("attack", "detector"), ("attack", "detector"))
+    except TableError:
         return []
+    return list(dict.fromkeys(f"{a}/{d}" for a, d in zip(t["attack"], t["detector"], strict=True)))
 
 
 def run_compare(

@@ -327,9 +327,10 @@ def preset_defaults(preset: str) -> dict[str, Any]:
     raise ConfigError(f"preset: unknown {preset!r}; known: {', '.join(PRESETS)}")
 
 
-def build_config(preset: str = "reference", **overrides: Any) -> SweepConfig:
-    """Preset defaults with overrides merged in (nested dicts merge one level)."""
-    data = preset_defaults(preset)
+def merged(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``overrides`` merged in: a table (dict) merges one level, so an override
+    sets its own keys of it, not the whole table; None overrides nothing."""
+    data = dict(base)
     for key, val in overrides.items():
         if val is None:
             continue
@@ -337,6 +338,12 @@ def build_config(preset: str = "reference", **overrides: Any) -> SweepConfig:
             data[key] = {**data[key], **val}
         else:
             data[key] = val
+    return data
+
+
+def build_config(preset: str = "reference", **overrides: Any) -> SweepConfig:
+    """Preset defaults with overrides merged in (`merged`)."""
+    data = merged(preset_defaults(preset), overrides)
     try:
         return SweepConfig(**data)
     except ValidationError as exc:

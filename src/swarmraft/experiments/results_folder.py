@@ -34,6 +34,17 @@ def folder_kind(path: str | Path) -> str | None:
     return None
 
 
+def require_own(out: str | Path, kind: str, what: str) -> None:
+    """A ConfigError unless ``out`` is new (or no results folder) or a ``kind`` folder:
+    ``what`` (a sweep, a comparison) writes a folder of its own. Its files beside another
+    kind's make neither readable again (compare.csv beside a sweep's cells.csv made the
+    folder a comparison, whose sweep figures could no longer be drawn from it)."""
+    if (found := folder_kind(out)) not in (None, kind):
+        raise ConfigError(
+            f"--out {out} is a {found} folder; {what} writes a folder of its own: use another --out"
+        )
+
+
 def require_kind(path: str | Path, wanted: tuple[str, ...], option: str, use: str) -> str:
     """The kind of ``path`` if it is one of ``wanted``; else a one-line ConfigError naming
     ``option`` and ``path``, saying what the folder is, what ``use`` (a command, as the user

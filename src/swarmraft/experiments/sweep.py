@@ -243,16 +243,12 @@ def check_resume(out: Path, config: SweepConfig) -> dict[str, Any] | None:
     before anything is written: run.json (if any) must hold the same config, and every
     finished cell must have been made with it (its provenance file; a cell without one is
     taken on run.json's word, and refused without run.json) and be whole."""
-    from swarmraft.experiments.results_folder import folder_kind
+    from swarmraft.experiments.results_folder import require_own
 
     out = Path(out)
     if not out.exists():
         return None
-    if (kind := folder_kind(out)) not in (None, "sweep"):
-        # a sweep's files beside a comparison's or a mission's: neither could be read again
-        raise ConfigError(
-            f"--out {out} is a {kind} folder; a sweep writes a folder of its own: use another --out"
-        )
+    require_own(out, "sweep", "a sweep")
     previous = read_run(out) if (out / "run.json").exists() else None
     if previous is not None:
         old = previous["config"]

@@ -10,7 +10,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.ticker import LogFormatter  # noqa: E402
+
+from swarmraft.viz.axes import plain_log_labels  # noqa: E402
 
 TRUE_STYLE = {"c": "green", "marker": "x", "s": 60, "label": "true position"}
 REPORT_STYLE = {"c": "red", "marker": "^", "s": 50, "label": "report"}
@@ -40,20 +41,6 @@ def _per_cell(counts: Sequence[int]) -> str:
     """'200' or '180-200': the trials per cell of a figure's title."""
     lo, hi = min(counts), max(counts)
     return f"{lo}" if lo == hi else f"{lo}-{hi}"
-
-
-class _PlainLog(LogFormatter):
-    """matplotlib's choice of which log ticks to label, each written as a plain number."""
-
-    def _num_to_string(self, x: float, vmin: float, vmax: float) -> str:
-        return f"{x:g}"
-
-
-def plain_log_labels(axis) -> None:
-    """A log axis labelled 0.1, 2, 30, 400 rather than 10^-1, 2x10^0, 3x10^1, 4x10^2 (the
-    same ticks matplotlib picks; minor ones labelled over up to 2.5 decades)."""
-    axis.set_major_formatter(_PlainLog())
-    axis.set_minor_formatter(_PlainLog(labelOnlyBase=False, minor_thresholds=(2.5, 0.5)))
 
 
 def scaling(cells: Mapping[str, np.ndarray], path: Path) -> Path:

@@ -20,7 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
-from matplotlib.ticker import FuncFormatter  # noqa: E402
+
+from swarmraft.viz.axes import plain_log_labels  # noqa: E402
 
 
 def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str) -> None:
@@ -34,13 +35,12 @@ def _panel(ax, err: np.ndarray, pl: np.ndarray, label: str) -> None:
         top = max(10.0, float(np.histogram2d(p, e, bins=[bins, bins])[0].max()))
         h = ax.hist2d(p, e, bins=[bins, bins], norm=LogNorm(vmin=1, vmax=top), cmap="viridis")
         bar = plt.colorbar(h[3], ax=ax, label="verdicts per cell")
-        counts = FuncFormatter(lambda v, _: f"{v:g}")  # counts as numbers, not 2x10^0
-        bar.ax.yaxis.set_major_formatter(counts)
-        if top <= 10:  # one decade: its minor ticks are the labels there are (more would crowd)
-            bar.ax.yaxis.set_minor_formatter(counts)
+        plain_log_labels(bar.ax.yaxis)  # counts as numbers, not 2x10^0
     ax.plot([lo, hi], [lo, hi], color="black", lw=1)
     ax.fill_between([lo, hi], [lo, hi], [hi, hi], color="tab:red", alpha=0.12, lw=0)
     ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi))
+    plain_log_labels(ax.xaxis)
+    plain_log_labels(ax.yaxis)
     ax.set_xlabel(f"{label} protection level, m")
     ax.set_ylabel(f"{label} position error, m (errors below 1 mm drawn at 1 mm)")
     mi = int((e > p).sum())

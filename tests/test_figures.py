@@ -8,8 +8,9 @@ from click.testing import CliRunner
 
 from swarmraft import viz
 from swarmraft.cli import main
-from swarmraft.experiments.compare import _ratio_sem, cell_sems
+from swarmraft.experiments.compare import cell_sems
 from swarmraft.experiments.curves import CURVE_COLUMNS, CurvePoint
+from swarmraft.experiments.metrics import efficiency_interval
 from swarmraft.experiments.published import PUBLISHED
 from swarmraft.viz import figures as vf
 from swarmraft.viz import mission as vm
@@ -308,19 +309,42 @@ def test_mission_timelines_mark_faults_the_same_way(drawn, draw):
     assert [x.get_text() for x in ax.texts] == ["leader 2 crashed"]
 
 
-def test_efficiency_standard_error_matches_the_spread_of_repeated_experiments():
+def test_efficiency_interval_covers_the_true_efficiency_as_often_as_it_says():
     rng = np.random.default_rng(1)
 
     def sample(size):
         bound = rng.uniform(1.0, 3.0, size)
         return bound * rng.chisquare(3, size) / 3 * 2.0, bound  # squared error ~ 2 x bound
 
-    ratios, sems = [], []
-    for _ in range(400):
+    covered = 0
+    for k in range(200):
         sq, b = sample(200)
-        ratios.append(sq.mean() / b.mean())
-        sems.append(_ratio_sem(sq, b))
-    assert np.mean(sems) == pytest.approx(np.std(ratios), rel=0.1)
+        lo, hi = efficiency_interval(sq, b, np.random.default_rng(k), resamples=400)
+        covered += lo <= np.sqrt(2.0) <= hi
+    assert 0.90 <= covered / 200 <= 0.99  # a 95 % interval
+
+
+def test_efficiency_interval_stays_above_the_trials_without_their_heavy_tail():
+    # 249 trials at the bound and one far off (a spoof missed by tens of metres): the
+    # delta method's symmetric interval reached below 1; the bootstrap's cannot go below the
+    # efficiency of the trials without the tail
+    sq = np.concatenate([np.full(249, 1.0), [2000.0]])
+    bound = np.ones(250)
+    eff = np.sqrt(sq.mean())
+    lo, hi = efficiency_interval(sq, bound, np.random.default_rng(0))
+    assert 1.0 <= lo < eff < hi
+    ratio = np.mean(sq) / np.mean(bound)
+    delta = (sq - ratio * bound).std(ddof=1) / np.sqrt(250) / bound.mean() / (2 * eff)
+    assert eff - 1.96 * delta < 1.0  # what the delta method drew
+
+
+def test_efficiency_interval_is_reproducible_and_says_nan_without_trials():
+    sq, bound = np.array([1.0, 2.0, 3.0, np.nan]), np.array([1.0, 1.0, np.nan, 1.0])
+    a = efficiency_interval(sq, bound, np.random.default_rng(5))
+    assert a == efficiency_interval(sq, bound, np.random.default_rng(5))
+    assert np.isnan(efficiency_interval(sq[:1], bound[:1], np.random.default_rng(5))).all()
+    # only the trials with both an error and a bound (1 and 2): within their range
+    assert np.sqrt(1.0) <= a[0] <= a[1] <= np.sqrt(2.0)
 
 
 def test_compare_table_standard_errors_come_from_the_cells_trials():
@@ -334,13 +358,27 @@ def test_compare_table_standard_errors_come_from_the_cells_trials():
         "attacked_sq": np.array([1.0, 2.0, 3.0, 9.0]),
         "attacked_bound": np.array([1.0, 1.0, 1.0, 1.0]),
     }
-    s = cell_sems(trials, 9, 3)
+    s = cell_sems(trials, 9, 3, seed=7)
     assert s["honest_sem"] == pytest.approx(np.std([1.0, 2.0, 4.0], ddof=1) / np.sqrt(3))
     assert s["identification_rate_sem"] == pytest.approx(np.std([1, 0, 1], ddof=1) / np.sqrt(3))
-    # efficiency sqrt(2): its standard error is that of the ratio over 2 sqrt(2)
-    assert s["attacked_efficiency_sem"] == pytest.approx(
-        np.std([1.0, 2.0, 3.0], ddof=1) / np.sqrt(3) / (2 * np.sqrt(2))
-    )
+    # the efficiency's interval from the cell's own trials (not (13, 3)'s 9), seeded by
+    # (seed, n, f)
+    want = efficiency_interval(np.array([1.0, 2.0, 3.0]), np.ones(3), np.random.default_rng([7, 9, 3]))
+    assert (s["attacked_efficiency_lo"], s["attacked_efficiency_hi"]) == want
+    assert 1.0 <= want[0] < want[1] <= np.sqrt(3.0)
+
+
+def test_compare_draws_the_efficiency_interval_from_its_bounds(drawn):
+    t = _table([(9, 3), (13, 3)], ["joint"])
+    t["attacked_efficiency"] = np.array([2.99, 1.2])
+    t["attacked_efficiency_lo"] = np.array([1.3, 1.1])
+    t["attacked_efficiency_hi"] = np.array([5.0, 1.4])
+    viz.compare(t, "attacked_efficiency", "efficiency", True, "x.png", reference=1.0)
+    (fig,) = drawn
+    caps = [ln for ln in fig.axes[0].lines if ln.get_marker() == "_"]
+    ends = np.sort(np.concatenate([ln.get_ydata() for ln in caps]))
+    np.testing.assert_allclose(ends, [1.1, 1.3, 1.4, 5.0])
+    assert "bootstrap" in fig._suptitle.get_text()
 
 
 def test_curve_points_name_their_threshold_parameter():

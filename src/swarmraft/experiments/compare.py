@@ -10,54 +10,42 @@ import numpy as np
 
 from swarmraft.estimation import get_detector
 from swarmraft.experiments.config import ConfigError, SweepConfig
-from swarmraft.experiments.metrics import CELL_COLUMNS, sem
+from swarmraft.experiments.metrics import CELL_COLUMNS, efficiency_interval, sem
 from swarmraft.experiments.sweep import CELL_TEXT_COLUMNS, SweepResult, read_run, run_sweep
 from swarmraft.experiments.tables import TableError, read_table, write_rows
 
 #: standard errors of the compared metrics that cells.csv does not hold, computed per cell
-#: from the sweep's trials.csv (recovered_sem is in cells.csv already)
+#: from the sweep's trials.csv (recovered_sem is in cells.csv already), and the efficiency's
+#: 95 % bootstrap interval (`metrics.efficiency_interval`: a ratio of heavy-tailed means has
+#: no symmetric interval worth drawing)
 SEM_COLUMNS = (
     "honest_sem",
     "detection_rate_sem",
     "false_positive_rate_sem",
     "identification_rate_sem",
-    "attacked_efficiency_sem",
+    "attacked_efficiency_lo",
+    "attacked_efficiency_hi",
 )
 
 
-def sem_column(metric: str) -> str:
-    """The column holding a compared metric's standard error."""
-    return metric.removesuffix("_mean") + "_sem"
-
-
-def _ratio_sem(num: np.ndarray, den: np.ndarray) -> float:
-    """Standard error of mean(num) / mean(den) over paired samples (delta method)."""
-    ok = np.isfinite(num) & np.isfinite(den)
-    num, den = num[ok], den[ok]
-    if num.size < 2 or den.mean() <= 0:
-        return float("nan")
-    r = num.mean() / den.mean()
-    return float((num - r * den).std(ddof=1) / np.sqrt(num.size) / den.mean())
-
-
-def cell_sems(trials: dict[str, np.ndarray], n: int, f: int) -> dict[str, float]:
-    """SEM_COLUMNS for one (n, f) cell of a trials table. The efficiency is
-    sqrt(mean squared error / mean bound): its standard error by the delta method."""
+def cell_sems(trials: dict[str, np.ndarray], n: int, f: int, seed: int) -> dict[str, float]:
+    """SEM_COLUMNS for one (n, f) cell of a trials table; the efficiency's interval from
+    the bootstrap generator seeded by (``seed``, n, f), so the same trials give the same
+    interval."""
     sel = (np.asarray(trials["n"]) == n) & (np.asarray(trials["f"]) == f)
 
     def col(name: str) -> np.ndarray:
         return np.asarray(trials[name], float)[sel]
 
-    sq, bound = col("attacked_sq"), col("attacked_bound")
-    eff = np.sqrt(np.nanmean(sq) / np.nanmean(bound)) if np.isfinite(bound).any() else float("nan")
+    rng = np.random.default_rng([seed, n, f])
+    lo, hi = efficiency_interval(col("attacked_sq"), col("attacked_bound"), rng)
     return {
         "honest_sem": sem(col("honest")),
         "detection_rate_sem": sem(col("detection_rate")),
         "false_positive_rate_sem": sem(col("false_positive_rate")),
         "identification_rate_sem": sem(col("identified")),
-        "attacked_efficiency_sem": _ratio_sem(sq, bound) / (2 * eff)
-        if np.isfinite(eff) and eff > 0
-        else float("nan"),
+        "attacked_efficiency_lo": lo,
+        "attacked_efficiency_hi": hi,
     }
 
 
@@ -125,7 +113,7 @@ def run_compare(
             trials = read_table(res.out / "trials.csv")
             for i in range(len(res.cells["n"])):
                 row = {c: res.cells[c][i] for c in CELL_COLUMNS}
-                rows.append({**row, **cell_sems(trials, int(row["n"]), int(row["f"]))})
+                rows.append({**row, **cell_sems(trials, int(row["n"]), int(row["f"]), cfg.seed)})
     columns = (*CELL_COLUMNS, *SEM_COLUMNS)
     write_rows(out / "compare.csv", columns, rows)
     table = {c: np.array([r[c] for r in rows]) for c in columns}

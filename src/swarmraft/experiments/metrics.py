@@ -124,6 +124,30 @@ def _efficiency(sq: np.ndarray, bound: np.ndarray) -> float:
     return float(np.sqrt(_mean(sq) / b)) if b > 0 else float("nan")
 
 
+def efficiency_interval(
+    sq: np.ndarray, bound: np.ndarray, rng: np.random.Generator, level: float = 0.95, resamples: int = 1000
+) -> tuple[float, float]:
+    """Percentile bootstrap interval (``level``) of `_efficiency` over the paired trials with
+    a finite error and bound, resampled together (``resamples`` draws from ``rng``); nan, nan
+    with fewer than 2 such trials. Not the delta method: a cell with a few trials tens of
+    metres off has a heavy-tailed mean squared error, and a symmetric interval around it
+    reached far below the bound (2.99 +- 2.41 for `fde` on jumps at 250 trials) where the
+    bootstrap's stays above the trials without those errors."""
+    both = np.isfinite(sq) & np.isfinite(bound)
+    sq, bound = np.asarray(sq, float)[both], np.asarray(bound, float)[both]
+    m = sq.size
+    if m < 2 or not bound.sum() > 0:
+        return float("nan"), float("nan")
+    ratios = np.empty(resamples)
+    chunk = max(1, 2_000_000 // m)  # resamples drawn at once: at most 2e6 indices in memory
+    for lo in range(0, resamples, chunk):
+        idx = rng.integers(0, m, size=(min(chunk, resamples - lo), m))
+        ratios[lo : lo + idx.shape[0]] = sq[idx].sum(axis=1) / bound[idx].sum(axis=1)
+    tail = (1 - level) / 2
+    low, high = np.quantile(np.sqrt(ratios), [tail, 1 - tail])
+    return float(low), float(high)
+
+
 def summarize_cell(trials: Mapping[str, np.ndarray], labels: Mapping[str, str]) -> dict:
     """One row of cells.csv from one cell's per-trial columns."""
     rec = np.asarray(trials["recovered"], dtype=float)

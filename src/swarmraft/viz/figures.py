@@ -337,16 +337,21 @@ def compare(
     reference: float | None = None,
 ) -> Path:
     """One metric per detector and (n, f) cell, a panel per attack: a dot per detector with
-    its 95 % interval (1.96 standard errors, from the table's ``<metric>_sem`` column, or
-    ``recovered_sem`` for ``recovered_mean``), detectors side by side within a cell and no
-    line joining cells. The axis is linear from 0; when ``log`` allows it and the values span
-    more than two decades it is logarithmic (dots only, no bars); a rate's interval is cut
-    at 0 and 1. ``reference`` draws a horizontal line (e.g. efficiency 1)."""
+    its 95 % interval (the table's ``<metric>_lo`` and ``<metric>_hi`` where it has them, else
+    1.96 standard errors from its ``<metric>_sem`` column, or ``recovered_sem`` for
+    ``recovered_mean``), detectors side by side within a cell and no line joining cells.
+    The axis is linear from 0; when ``log`` allows it and the values span more than two
+    decades it is logarithmic (dots only, no bars); a rate's interval is cut at 0 and 1.
+    ``reference`` draws a horizontal line (e.g. efficiency 1)."""
     attacks = list(dict.fromkeys(np.asarray(table["attack"]).tolist()))
     detectors = list(dict.fromkeys(np.asarray(table["detector"]).tolist()))
     values = np.asarray(table[metric], float)
     sem_name = metric.removesuffix("_mean") + "_sem"
     sems = np.asarray(table[sem_name], float) if sem_name in table else np.full(values.shape, np.nan)
+    # an interval of its own (the efficiency's bootstrap): bars from it, not from a sem
+    bounds = f"{metric}_lo" in table and f"{metric}_hi" in table
+    if bounds:
+        low, high = np.asarray(table[f"{metric}_lo"], float), np.asarray(table[f"{metric}_hi"], float)
     positive = values[np.isfinite(values) & (values > 0)]
     use_log = bool(log and positive.size and positive.max() / positive.min() > 100)
     all_cells = sorted({(int(n), int(f)) for n, f in zip(table["n"], table["f"], strict=True)})
@@ -375,7 +380,13 @@ def compare(
             idx = [val.get(c) for c in cells]
             ys = np.array([values[i] if i is not None else np.nan for i in idx])
             es = np.array([1.96 * sems[i] if i is not None else np.nan for i in idx])
-            if use_log:
+            if bounds:
+                ys = np.where(ys > 0, ys, np.nan) if use_log else ys
+                lo = np.array([low[i] if i is not None else np.nan for i in idx])
+                hi = np.array([high[i] if i is not None else np.nan for i in idx])
+                es = hi - ys  # for the top of the axis
+                yerr = np.maximum(np.nan_to_num(np.vstack([ys - lo, hi - ys])), 0.0)
+            elif use_log:
                 ys = np.where(ys > 0, ys, np.nan)
                 lower = np.where(np.isfinite(es), np.minimum(es, ys * 0.999), 0.0)
                 yerr = np.vstack([lower, np.nan_to_num(es)])
@@ -413,7 +424,11 @@ def compare(
         f"{trials[0]} trials per cell" if len(trials) == 1 else f"{trials[0]}-{trials[-1]} trials per cell"
     )
     interval = "dots: mean, bars: 95 % interval (1.96 standard errors)"
-    if not np.isfinite(sems).any():
+    if bounds:
+        interval = "dots: value, bars: 95 % interval (bootstrap over the trials)"
+        if not (np.isfinite(low) & np.isfinite(high)).any():
+            interval = "dots: value (no interval in the table)"
+    elif not np.isfinite(sems).any():
         interval = "dots: mean (no standard error in the table)"
     fig.suptitle(
         f"{label}\npreset {presets}, {trials_text}, (n, f) = {_cells_text(all_cells)}\n{interval}",

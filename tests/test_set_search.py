@@ -70,7 +70,7 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     cfg = build_config("realistic", n=(7,), f=(1,), trials=10000)
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 1, 3)), 1000, 7, 1)
     batch = snapshot_batch(cfg, d).subset(np.array([972]))
-    before = verify_batch(batch, "joint")
+    before = verify_batch(batch, "joint", set_search=0)
     assert before.status[0] == "degenerate" and before.faulty[0].sum() == 3
     assert np.linalg.norm(before.positions[0] - d.truth[972], axis=1).max() > 90
     v = verify_batch(batch, "joint", set_search=100)
@@ -78,6 +78,27 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     assert not v.faulty[0].any()
     err = np.linalg.norm(v.positions[0] - d.truth[972], axis=1)
     assert np.isnan(err[d.attackers[972]]).all() and np.nanmax(err) < 10
+    # the default searches a swarm of 7 (64 sets): the same answer
+    default = verify_batch(batch, "joint")
+    assert default.status[0] == "unidentifiable" and not default.faulty[0].any()
+    np.testing.assert_array_equal(default.positions, v.positions)
+
+
+def test_the_default_search_covers_swarms_of_up_to_7_drones_only():
+    """`set_search` 64: every set of 7 drones with f_max 3 (64), not of 8 (93) or 9 (256), so
+    the (9, 4) alarm of trial 124 stands as the detector left it."""
+    from swarmraft.estimation.gnc import JointParams
+
+    assert JointParams().set_search == sum(math.comb(7, k) for k in range(4)) == 64
+    assert sum(math.comb(8, k) for k in range(4)) > 64
+    cfg = build_config("realistic", n=(9,), f=(4,), trials=10000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, 0)), 1000, 9, 4)
+    batch = snapshot_batch(cfg, d).subset(np.array([124]))
+    default, off = verify_batch(batch, "joint"), verify_batch(batch, "joint", set_search=0)
+    assert default.status[0] == off.status[0] == "alarm"
+    np.testing.assert_array_equal(default.faulty, off.faulty)
+    np.testing.assert_array_equal(default.positions, off.positions)
+    assert not (default.faulty[0] == d.attackers[124]).all()  # what the search would change
 
 
 def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival():
@@ -90,7 +111,7 @@ def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival()
     cfg = build_config("realistic", n=(7,), f=(3,), trials=2000, geometry="flat")
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 3, 0)), 1000, 7, 3)
     batch = snapshot_batch(cfg, d).subset(np.array([253]))
-    assert verify_batch(batch, "joint").status[0] == "degenerate"
+    assert verify_batch(batch, "joint", set_search=0).status[0] == "degenerate"
     v = verify_batch(batch, "joint", set_search=100)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[253]).any()

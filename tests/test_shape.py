@@ -250,14 +250,19 @@ def test_registration_rivals_on_plain_jumps_change_verdicts_only_to_unidentifiab
 def test_registration_rivals_turn_an_alarm_two_registrations_explain_into_unidentifiable():
     """`joint` alone can end in an `alarm` that accuses honest drones while both the honest
     registration and the colluders' pass their tests (n = 2f+1): exclusion was not
-    exhausted, and the answer is the explanations', accusing no honest drone."""
+    exhausted, and the answer is the explanations', accusing no honest drone. (`joint`'s set
+    search, on by default at n = 7, answers the same there: both are checked, the rivals with
+    the search off.)"""
     d, b = collusion(7, 3, 1, 80, seed=21)
-    plain = verify_batch(b, "joint")
+    plain = verify_batch(b, "joint", set_search=0)
     rows = np.flatnonzero((plain.status == "alarm") & (plain.faulty & ~d.attackers).any(axis=1))
     assert rows.size  # the case exists in these trials
-    v = verify_batch(b.subset(rows), "joint", registration_rivals=True)
+    v = verify_batch(b.subset(rows), "joint", registration_rivals=True, set_search=0)
     assert (v.status == "unidentifiable").all()
     assert not (v.faulty & ~d.attackers[rows]).any()
+    searched = verify_batch(b.subset(rows), "joint")
+    assert (searched.status == "unidentifiable").all()
+    assert not (searched.faulty & ~d.attackers[rows]).any()
 
 
 def test_registration_rivals_need_more_than_a_refit_of_fewer_reports():

@@ -174,11 +174,13 @@ class JointParams(IntegrityParams):
     inner: int = Field(1, ge=1, description="GNC: Gauss-Newton iterations per round")
     flag_chi2: float = Field(CHI2_3DOF_999, gt=0, description="flag GNSS residual^2 above")
     set_search: int = Field(
-        0,
+        64,
         ge=0,
         description="an alarm verdict, or a degenerate one that accuses drones, tries every "
         "trusted set leaving out at most f_max drones, smallest exclusion first, where all of them "
-        "are at most this many sets (256 at n = 9, 1,024 at 11, 4,096 at 13; fewer: no search); 0: off",
+        "are at most this many sets (64 at n = 7, 256 at 9, 1,024 at 11, 4,096 at 13; fewer: no "
+        "search); the default 64 searches swarms of up to 7 drones (at most 50 ms a searched step: "
+        "benchmarks/bench_set_search.py); 0: off",
     )
     search_budget: int | None = Field(
         None,

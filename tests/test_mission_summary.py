@@ -183,19 +183,26 @@ def test_honest_error_is_reported_after_each_fault(small):
 
 
 def test_every_skipped_step_is_put_down_to_a_cause(small):
-    """Skipped steps before the first record (the first election), within 2 s after a fault
-    event (here drone 6's crash at 4 s), and the rest: unexplained, listed by time."""
+    """Skipped steps before the first record (the first election), from the step before a
+    fault event (here drone 6's crash at 4 s: its record was on its way) to 2 s after it, and
+    the rest: unexplained, listed by time."""
     log = copy.deepcopy(small)
     log.committed[:] = True
-    log.committed[[0, 1, 41, 75]] = False  # 0 and 0.1 s; 4.1 s; 7.5 s
+    log.committed[[0, 1, 39, 41, 75]] = False  # 0 and 0.1 s; 3.9 s; 4.1 s; 7.5 s
+    (crash,) = [t for t, what in log.events if "crash" in what or "killed" in what]
+    assert crash == pytest.approx(4.0)
     s = summarize(log, error_series(log))
-    assert s["skipped_steps"] == 4
+    assert s["skipped_steps"] == 5
     assert s["skipped_causes"] == {
         "before_first_record": 2,
-        "after_fault": 1,
+        "after_fault": 2,
         "unexplained": 1,
         "unexplained_times_s": [7.5],
     }
+    log.committed[39] = True
+    log.committed[38] = False  # two steps before the crash: not its doing
+    c = summarize(log, error_series(log))["skipped_causes"]
+    assert c["after_fault"] == 1 and c["unexplained_times_s"] == [3.8, 7.5]
 
 
 def test_the_demo_skips_no_step_without_a_cause(demo):
@@ -265,3 +272,18 @@ def test_a_mission_whose_records_have_no_protection_levels_does_not_claim_none_m
     assert "misleading information: not judged (no ok record has a protection level)" in " ".join(
         res.output.split()
     )
+
+
+def test_a_log_cut_to_its_first_steps_keeps_only_what_they_hold(small):
+    """An interrupted launch is summarised over the steps it reached: every per-step array
+    and the events up to the last of them (the steps after it were not skipped: they never
+    came)."""
+    k = 30  # to 2.9 s: before drone 6's crash at 4 s
+    cut = small.first_steps(k)
+    assert len(cut.t) == k and cut.t[-1] == small.t[k - 1]
+    for name in ("truth", "verified", "committed", "alive", "status", "latency_ms"):
+        np.testing.assert_array_equal(getattr(cut, name), getattr(small, name)[:k])
+    assert cut.events == [(t, e) for t, e in small.events if t <= small.t[k - 1]]
+    assert len(small.t) > k and cut.events == [] and small.events == [(4.0, "drone 6 crashed")]
+    s = summarize(cut, error_series(cut))
+    assert s["committed_steps"] + s["skipped_steps"] == k

@@ -165,3 +165,19 @@ def test_a_launch_that_commits_nothing_fails_and_writes_strict_json(tmp_path):
         (out / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"not JSON: {c}")
     )
     assert summary["latency_ms_median"] is None and summary["raft_messages_per_committed_step"] is None
+
+
+def test_launch_says_before_it_starts_when_the_replayed_log_ends_before_the_scenario(tmp_path):
+    from swarmraft.cli.net import short_log
+    from swarmraft.net.sources.replay import read_sensor_log
+    from swarmraft.sim.scenario import Scenario
+
+    sc = Scenario(drones=4, duration_s=10)
+    rows = "\n".join(f"{t / 10:g},{d},0,0,0,0,0,0,,,," for t in range(51) for d in range(1, 5))
+    log = tmp_path / "short.csv"
+    log.write_text(
+        "t_s,drone,gnss_x,gnss_y,gnss_z,ins_x,ins_y,ins_z,range_1,range_2,range_3,range_4\n" + rows
+    )
+    said = short_log(read_sensor_log(log, 4), sc, log)
+    assert said is not None and said.startswith(f"{log} ends at 5 s and the scenario flies 10 s")
+    assert short_log(read_sensor_log(log, 4), Scenario(drones=4, duration_s=5), log) is None

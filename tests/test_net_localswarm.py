@@ -181,3 +181,28 @@ def test_lying_leader_tells_the_drone_that_leads_to_lie_and_no_other(tmp_path, m
     role_events(run, 2, ("candidate", 3))
     assert run.actions()[0].run() == "lying-leader: no leader known within 0.2 s, nobody compromised"
     assert not any(run.logs.values()) and run.liar is None
+
+
+def test_without_the_relay_the_line_names_what_of_the_network_is_not_applied(tmp_path):
+    run = swarm_with(tmp_path, [], network={"loss": 0.2, "delay_ms": [1, 3]})
+    run.link = None  # as with --relay off
+    line = run.network_line()
+    assert "no fault relay" in line and "delay 1-3 ms, loss 20% not applied" in line
+    run = swarm_with(tmp_path / "b", [])
+    run.link = None
+    assert run.network_line().endswith("the scenario's delay 1-3 ms not applied)")
+
+
+def test_a_fault_is_timed_when_launch_began_it_not_when_it_finished(tmp_path, monkeypatch):
+    """crash-leader reads the drones' event files first; the fault's time is when that
+    began (the skipped steps are counted from it), not 0.1 s later."""
+    run = swarm_with(tmp_path, [{"kind": "crash-leader", "at_s": 0.0}])
+    role_events(run, 2, ("leader", 1))
+    # the fault's wait, its start, the kill (0.3 s later), then past the scenario's end
+    clock = iter([100.0, 100.0, 100.3, 100.3])
+    monkeypatch.setattr(localswarm.time, "time", lambda: next(clock, 200.0))
+    run.start_unix_s = 100.0
+    run.sc = run.sc.model_copy(update={"duration_s": 0.0})
+    monkeypatch.setattr(run, "stop", lambda: None)
+    run.run()
+    assert run.events == [(0.0, "leader 2 (term 1) killed (SIGKILL)")]

@@ -7,6 +7,7 @@ cleanly. Every wait is bounded; each test takes well under a minute on a busy 2-
 ends them with SIGTERM once it has seen what it checks)."""
 
 import asyncio
+import logging
 import os
 import re
 import signal
@@ -274,7 +275,8 @@ def run_cli(*args, timeout=30):
 
 def test_a_node_that_cannot_bind_or_is_misconfigured_exits_with_one_line(tmp_path):
     scenario = tmp_path / "scenario-src.toml"
-    scenario.write_text(SCENARIO.format(n=4, duration=4))
+    # long enough not to have ended by the last check (a node refuses an ended scenario)
+    scenario.write_text(SCENARIO.format(n=4, duration=600))
     path, swarm = prepare_swarm(tmp_path / "run", scenario, 4, time.time())
     taken = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     taken.bind(swarm.drones[1].bind_address)
@@ -309,7 +311,36 @@ def test_a_node_that_cannot_bind_or_is_misconfigured_exits_with_one_line(tmp_pat
     assert done.stderr.strip() == said
 
 
-def test_ctrl_c_stops_launch_and_every_drone_process(tmp_path):
+def test_a_node_with_no_step_to_fly_says_so_in_one_line(tmp_path):
+    """A start time whose scenario has ended exited 0 in silence; a step of 1 ms, shorter
+    than the leader's wait for reports, sent reports for 12 s and applied nothing."""
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=4))
+    path, _ = prepare_swarm(tmp_path / "old", scenario, 4, time.time() - 100)
+    done = run_cli("node", "--id", "1", "--swarm", str(path), timeout=60)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "start_unix_s: step 0 was at" in done.stderr and "nothing left to fly" in done.stderr
+    path, _ = prepare_swarm(tmp_path / "fast", scenario, 4, time.time() + 60)
+    path.write_text(re.sub(r"(?m)^start_unix_s", "step_s = 0.001\nstart_unix_s", path.read_text()))
+    done = run_cli("node", "--id", "1", "--swarm", str(path), timeout=60)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "step_s: a step of 1 ms is shorter than the leader's wait for reports (60 ms" in done.stderr
+    # a start time in milliseconds: the node waits, and says how long
+    path, _ = prepare_swarm(tmp_path / "ms", scenario, 4, time.time() * 1000)
+    cmd = [sys.executable, "-m", "swarmraft", "node", "--id", "1", "--swarm", str(path)]
+    node = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = node.stderr.readline()  # blocks until the node says something
+    finally:
+        node.terminate()
+        node.communicate(timeout=30)
+    assert "drone 1: step 0 is" in line and "days from now" in line and "not milliseconds" in line
+
+
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_or_sigterm_stops_launch_and_every_drone_process(tmp_path, sig, status):
+    """Ctrl-C, or a SIGTERM to launch alone (`kill`, `timeout`, a CI runner): every drone is
+    stopped and the results are written; before SIGTERM was handled the drones outlived it."""
     scenario = tmp_path / "long.toml"
     scenario.write_text(SCENARIO.format(n=4, duration=60))
     out = tmp_path / "out"
@@ -322,12 +353,17 @@ def test_ctrl_c_stops_launch_and_every_drone_process(tmp_path):
             any(r["committed"] for r in read_jsonl(nodes / f"drone-{i}.steps.jsonl")) for i in range(1, 5)
         ):
             time.sleep(0.1)
-        launch.send_signal(signal.SIGINT)
+        launch.send_signal(sig)
         stdout, stderr = launch.communicate(timeout=30)
     finally:
         launch.kill()
-    assert launch.returncode == 130, stdout + stderr
-    assert "interrupted" in stderr and "steps committed" in stdout
+    assert launch.returncode == status, stdout + stderr
+    assert f"interrupted ({sig.name})" in stderr and "steps committed" in stdout
+    # summarised over the steps it reached, not the 601 of the scenario (those after the
+    # interrupt were counted as skipped)
+    reached = (out / "records.csv").read_text().count("\n") - 1
+    assert 0 < reached < 601
+    assert f"of {reached} steps committed" in " ".join(stdout.split())
     for i in range(1, 5):
         pid = [e for e in events(nodes, i) if e["event"] == "start"][-1]["pid"]
         with pytest.raises(ProcessLookupError):
@@ -345,6 +381,18 @@ def test_launch_refuses_bad_input_with_one_line(tmp_path):
     done = run_cli("launch", "--scenario", "demo", "--out", str(tmp_path / "b"))
     assert done.returncode == 2
     assert done.stderr.strip().startswith(f"error: --out: {tmp_path / 'b'} holds a swarm already")
+    # an earlier run's keys or drone files without its swarm.toml: new drones would reopen its
+    # SQLite logs and report its records as theirs (and keys/ ended in a traceback)
+    for part in ("keys", "nodes"):
+        (tmp_path / part / part).mkdir(parents=True)
+        done = run_cli("launch", "--scenario", "demo", "--out", str(tmp_path / part))
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert f"holds a swarm already ({part})" in done.stderr
+    for bad in ("inf", "nan"):
+        done = run_cli("launch", "--scenario", "demo", "--out", str(tmp_path / "c"), "--start-delay", bad)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert "--start-delay" in done.stderr and "finite" in done.stderr
+    assert not (tmp_path / "c").exists()  # nothing written
 
 
 def test_a_drone_warms_up_its_detector_on_a_flagged_step_as_well():
@@ -465,3 +513,23 @@ def test_a_wall_clock_jump_reschedules_the_steps(tmp_path, monkeypatch):
     assert max(applied) >= 60, max(applied)  # the steps after the jump (2 s = 20 steps skipped)
     assert sum(k > 45 for k in applied) >= 20
     assert all(h.counters["clock_resyncs"] >= 1 for h in hosts)
+
+
+def test_a_role_change_is_logged_for_node_v(caplog):
+    """`node -v` logs role changes (its help says so); they went to the event file only."""
+    from types import SimpleNamespace
+
+    from swarmraft.net.node import DroneHost
+
+    seen = []
+    host = SimpleNamespace(
+        id=3,
+        node=SimpleNamespace(role="leader", term=4, lead=3),
+        _role=("follower", 3),
+        _event=lambda kind, **fields: seen.append((kind, fields)),
+    )
+    with caplog.at_level(logging.INFO, logger="swarmraft.net.node"):
+        DroneHost._note_role(host)
+        DroneHost._note_role(host)  # no change: nothing more
+    assert seen == [("role", {"role": "leader", "term": 4, "leader": 3})]
+    assert [r.getMessage() for r in caplog.records] == ["drone 3 is leader in term 4, leader 3"]

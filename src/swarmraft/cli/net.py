@@ -3,6 +3,7 @@ process) and launch (a swarm of drone processes on this machine)."""
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from pathlib import Path
@@ -96,6 +97,20 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
         sys.exit(status)
 
 
+def short_log(sensor_log, sc, path: Path) -> str | None:  # noqa: ANN001 (SensorLog, Scenario)
+    """What launch says when a replayed log ends before the scenario's last step (None: it
+    covers it)."""
+    last = float(sensor_log.t_s.max()) if sensor_log.t_s.size else 0.0
+    flown = sc.steps * sc.dt_s
+    if last + sc.dt_s >= flown - 1e-9:
+        return None
+    return (
+        f"{path} ends at {last:g} s and the scenario flies {flown:g} s: the steps after its end "
+        "have no reading once its last lines are max_age_s old (1 s by default: docs/records.md) "
+        "and are skipped"
+    )
+
+
 @main.command("launch")
 @click.option(
     "--scenario",
@@ -174,18 +189,29 @@ def launch(
     from swarmraft.sim.sensing import ScenarioWorld
 
     sc = load_scenario(scenario, seed=seed)
-    if (out / "swarm.toml").exists():
+    # a swarm's own files: new drones would reopen an earlier run's SQLite logs and step files
+    # and report its records as theirs
+    from swarmraft.net.launch import NODES_DIR
+
+    held = [name for name in ("swarm.toml", "keys", NODES_DIR) if (out / name).exists()]
+    if held:
         raise click.BadParameter(
-            f"{out} holds a swarm already (swarm.toml); choose another folder", param_hint="--out"
+            f"{out} holds a swarm already ({', '.join(held)}); choose another folder", param_hint="--out"
+        )
+    if start_delay is not None and not math.isfinite(start_delay):
+        raise click.BadParameter(
+            f"{start_delay}: give a finite number of seconds", param_hint="--start-delay"
         )
     n = sc.drones
     if replay is not None:
         from swarmraft.net.sources.replay import SensorLogError, read_sensor_log
 
         try:  # a bad log is one line (file:line: field: problem) before anything starts
-            read_sensor_log(replay, n)
+            sensor_log = read_sensor_log(replay, n)
         except SensorLogError as exc:
             raise click.BadParameter(str(exc), param_hint="--replay") from None
+        if short := short_log(sensor_log, sc, replay):  # said before the run, not after it in red skips
+            console.print(f"[red]warning[/]: {short}", soft_wrap=True)
     check_live_options(live, None, linger, port, viewer_memory)
     session = follow = world = None
     if live or record_to:
@@ -213,7 +239,7 @@ def launch(
             tail = LaunchTail(world, run.nodes_dir, run.start_unix_s, run.events, run.kills)
             follow = FollowLaunch(session, tail, run.start_unix_s, sc.dt_s)
             follow.start()
-        run.run()
+        run.run_stoppable()
     except BaseException:
         if session is not None:
             if follow is not None:
@@ -222,10 +248,13 @@ def launch(
         raise
     if follow is not None:
         follow.stop()
-    g = gather_steps(run.nodes_dir, n, sc.steps, sc.dt_s, out / "records.csv")
+    # an interrupted run is summarised over the steps it reached (the others were not skipped:
+    # they never came)
+    flown = run.steps_flown()
+    g = gather_steps(run.nodes_dir, n, flown - 1, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()
     world = world or ScenarioWorld.build(sc)
-    log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills)
+    log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills).first_steps(flown)
     extra = {
         "launch": {
             "processes": n,
@@ -273,8 +302,8 @@ def launch(
         console.print(session.rate_line(sc.dt_s), soft_wrap=True)
         session.close(result.log, result.errors)
     if run.interrupted:
-        err_console.print("interrupted")
-        sys.exit(130)
+        err_console.print(f"interrupted ({run.signal_name})")
+        sys.exit(143 if run.signal_name == "SIGTERM" else 130)
     if not g.all_identical:
         sys.exit(1)
     if g.committed == 0:  # a run with no record is void, whatever its files say

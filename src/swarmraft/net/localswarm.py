@@ -7,6 +7,7 @@ processes and the relay at their times, and the end waited for. Gathering the re
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -74,6 +75,7 @@ class LocalSwarm:
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
     unstoppable: list[int] = field(default_factory=list)  # drones SIGKILLed at the end
     interrupted: bool = False
+    stopped_s: float = 0.0  # s after step 0 at the interrupt
     liar: int | None = None  # the drone told to lie (lying-leader fault)
 
     def __post_init__(self) -> None:
@@ -118,7 +120,20 @@ class LocalSwarm:
         net = self.sc.network
         if self.link is None:
             why = "--relay off" if self.relay_mode == "off" else "nothing to apply"
-            return f"network: direct loopback, no fault relay ({why}; the scenario's delay is not applied)"
+            lost = [f"delay {net.delay_ms[0]:g}-{net.delay_ms[1]:g} ms"]
+            lost += [
+                f"{name} {v:.0%}"
+                for name, v in (
+                    ("loss", net.loss),
+                    ("duplication", net.duplicate),
+                    ("reordering", net.reorder),
+                )
+                if v
+            ]
+            return (
+                f"network: direct loopback, no fault relay ({why}; the scenario's "
+                f"{', '.join(lost)} not applied)"
+            )
         return (
             f"network: through the fault relay: delay {net.delay_ms[0]:g}-{net.delay_ms[1]:g} ms, "
             f"loss {net.loss:.0%}, duplication {net.duplicate:.0%}, reordering {net.reorder:.0%}"
@@ -229,16 +244,44 @@ class LocalSwarm:
             for a in self.actions():
                 while time.time() < self.start_unix_s + a.at_s:
                     time.sleep(0.01)
+                # the time the action began: reading who leads, say, takes a tenth of a
+                # second, and a fault's skipped steps are counted from its time
+                began = round(time.time() - self.start_unix_s, 2)
                 what = a.run()
-                self.events.append((round(time.time() - self.start_unix_s, 2), what))
+                self.events.append((began, what))
                 self.say(f"{a.at_s:g} s: {what}")
             end = self.start_unix_s + sc.steps * sc.dt_s + END_WAIT_S
             while any(p.alive for p in self.procs.values()) and time.time() < end:
                 time.sleep(0.1)
         except KeyboardInterrupt:
             self.interrupted = True
+            self.stopped_s = time.time() - self.start_unix_s
         finally:
             self.stop()
+
+    def steps_flown(self) -> int:
+        """The steps the run reached: all of the scenario's, or, after an interrupt, those that
+        began before it."""
+        S = self.sc.steps + 1
+        if not self.interrupted:
+            return S
+        return max(1, min(S, int(self.stopped_s // self.sc.dt_s) + 1))  # step 0 at least: a summary
+
+    def run_stoppable(self) -> None:
+        """`run`, with SIGTERM handled as Ctrl-C is (every drone stopped, the results written,
+        ``interrupted``), so that `kill`, `timeout` or a CI runner stopping launch leaves no
+        drone process behind; ``signal_name`` says which signal it was."""
+
+        def on_term(signum: int, frame: object) -> None:  # noqa: ARG001
+            self.signal_name = "SIGTERM"
+            raise KeyboardInterrupt
+
+        self.signal_name = "SIGINT"
+        before = signal.signal(signal.SIGTERM, on_term)
+        try:
+            self.run()
+        finally:
+            signal.signal(signal.SIGTERM, before)
 
     def up_after_step0(self) -> dict[int, float | None]:
         """For each drone, seconds from step 0 to its first start event (negative: up before

@@ -26,6 +26,7 @@ committed is lost), the files are flushed and closed, the socket and the databas
 from __future__ import annotations
 
 import asyncio
+import datetime
 import hashlib
 import json
 import logging
@@ -76,6 +77,9 @@ from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.sim.sensing import ScenarioWorld
 
 _logger = logging.getLogger(__name__)
+#: a step 0 further ahead than this is said when the node comes up (a start time given in
+#: milliseconds waits for 55,000 years)
+FAR_AHEAD_S = 86400.0
 
 #: The wall clock and the loop's clock parting by more than this (s) reschedules the steps.
 CLOCK_JUMP_S = 0.5
@@ -119,7 +123,33 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
         raise NodeConfigError(
             f"scenario {path.name}: {sc.drones} drones, the swarm file lists {len(swarm.drones)}"
         )
+    # a step shorter than the leader's wait for reports, or than a Raft tick, never commits:
+    # a step of 1 ms sent 36,000 reports in 12 s and applied nothing
+    floor_ms = max(sc.protocol.deadline_ms, swarm.tick_ms)
+    if sc.dt_s * 1000 < floor_ms:
+        what = "step_s" if swarm.step_s is not None else f"scenario {path.name}: dt_s"
+        raise NodeConfigError(
+            f"{what}: a step of {sc.dt_s * 1000:g} ms is shorter than the leader's wait for reports "
+            f"({sc.protocol.deadline_ms:g} ms, protocol.deadline_ms) or the Raft tick "
+            f"({swarm.tick_ms:g} ms): "
+            f"give at least {floor_ms / 1000:g} s"
+        )
+    end = swarm.start_unix_s + sc.steps * sc.dt_s
+    if end < time.time():
+        raise NodeConfigError(
+            f"start_unix_s: step 0 was at {swarm.start_unix_s:.0f} ({_utc(swarm.start_unix_s)}), so the "
+            f"scenario's {sc.duration_s:g} s ended {time.time() - end:.0f} s ago: nothing left to fly "
+            "(give a start_unix_s ahead of now)"
+        )
     return sc
+
+
+def _utc(unix_s: float) -> str:
+    """A Unix time as UTC text, or what it is if no date can show it."""
+    try:
+        return datetime.datetime.fromtimestamp(unix_s, datetime.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+    except (OverflowError, OSError, ValueError):
+        return "beyond any date"
 
 
 def entries_per_append(n: int) -> int:
@@ -411,6 +441,16 @@ class DroneHost:
                 self.storage.last_index(),
                 hs.commit,
             )
+            ahead = self.swarm.start_unix_s - time.time()
+            if ahead > FAR_AHEAD_S:  # said whatever -v says: the node would wait in silence
+                _logger.warning(
+                    "drone %d: step 0 is %.1f days from now (start_unix_s %.0f, %s; seconds since 1970, "
+                    "not milliseconds)",
+                    self.id,
+                    ahead / 86400,
+                    self.swarm.start_unix_s,
+                    _utc(self.swarm.start_unix_s),
+                )
             for sig in (signal.SIGTERM, signal.SIGINT):
                 loop.add_signal_handler(sig, self.stop, sig.name)
             loop.add_signal_handler(signal.SIGUSR1, self.compromise)
@@ -568,6 +608,8 @@ class DroneHost:
         if now != self._role:
             self._role = now
             self._event("role", role=now[0], term=now[1], leader=self.node.lead)
+            lead = f", leader {self.node.lead}" if self.node.lead else ""
+            _logger.info("drone %d is %s in term %d%s", self.id, now[0], now[1], lead)
 
     # -- network ----------------------------------------------------------------------------
     def _send(self, to: int, obj: Message | Report | wire.ReportAck, counter: str | None = None) -> None:

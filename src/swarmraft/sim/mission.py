@@ -9,7 +9,7 @@ import gc
 import hashlib
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -71,6 +71,20 @@ class MissionLog:
     def in_swarm(self) -> np.ndarray:
         """(S, n) bool: ``member``, or every drone at every step when nobody joins or leaves."""
         return self.member if self.member is not None else np.ones(self.spoofed.shape, bool)
+
+    def first_steps(self, k: int) -> MissionLog:
+        """This log cut to its first k steps (and the events up to the last of them): a run
+        stopped early is summarised over the steps it flew, not over the ones it never reached."""
+        S = len(self.t)
+        k = max(0, min(k, S))
+        cut = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == S:
+                cut[f.name] = v[:k].copy()
+        end = float(self.t[k - 1]) if k else -np.inf
+        cut["events"] = [(t, what) for t, what in self.events if t <= end + 1e-9]
+        return replace(self, **cut)
 
 
 def resident_zeros(shape: int | tuple[int, ...], dtype: type) -> np.ndarray:

@@ -112,6 +112,21 @@ def test_status_of_a_running_swarm_and_of_a_killed_drone(tmp_path):
             sock.close()
         assert 1 <= answered <= 2 * REPLIES_PER_S
 
+        # the wrong keys file: every drone answers, no answer is taken, and the last line says
+        # so (it said "4 of 4 drones did not answer")
+        from swarmraft.net.keys import write_keys
+
+        write_keys(swarm.path.parent / "other-keys", 4)
+        wrong = swarm.path.parent / "wrong-keys.toml"  # beside swarm.toml: its paths still hold
+        text = swarm.path.read_text()
+        assert 'public_keys = "keys/swarm-keys.toml"' in text
+        wrong.write_text(text.replace('"keys/swarm-keys.toml"', '"other-keys/swarm-keys.toml"'))
+        done = status_cli(wrong)
+        out = " ".join(done.stdout.split())
+        assert done.returncode == 1, out
+        assert "bad signature" in out and "did not answer" not in out, out
+        assert "4 of 4 drones answered with an answer not taken" in out, out
+
         follower = next(i for i in (1, 2, 3, 4) if i != lead["drone"])
         swarm.procs[follower].kill()
         time.sleep(0.5)

@@ -355,9 +355,18 @@ def status(swarm_path: Path, timeout: float, as_json: bool) -> None:
         leaders = [a for a in answers.values() if a.fields and a.fields["role"] == "leader"]
         for lead in sorted(leaders, key=lambda a: -a.fields["term"]):  # type: ignore[index]
             print_table(peers_table(lead.drone, lead.fields))  # type: ignore[arg-type]
-        silent = [i for i, a in answers.items() if a.fields is None]
+        # no answer at all, and answers that came but were not taken (a bad signature: the
+        # wrong keys file, say): told apart, as the rows tell them
+        silent = [i for i, a in answers.items() if a.fields is None and a.problem == "no answer"]
+        refused = [i for i, a in answers.items() if a.fields is None and a.problem != "no answer"]
         if silent:
             who = ", ".join(map(str, silent))
             console.print(f"[red]{len(silent)} of {len(answers)} drones did not answer[/]: {who}")
+        if refused:
+            who = ", ".join(map(str, refused))
+            console.print(
+                f"[red]{len(refused)} of {len(answers)} drones answered with an answer not taken[/] "
+                f"(the row says why): {who}"
+            )
     if any(a.fields is None for a in answers.values()):
         sys.exit(1)

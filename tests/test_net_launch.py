@@ -181,3 +181,5 @@ def test_launch_says_before_it_starts_when_the_replayed_log_ends_before_the_scen
     said = short_log(read_sensor_log(log, 4), sc, log)
     assert said is not None and said.startswith(f"{log} ends at 5 s and the scenario flies 10 s")
     assert short_log(read_sensor_log(log, 4), Scenario(drones=4, duration_s=5), log) is None
+    # its last lines serve 1 s more (max_age_s): a log 0.2 s short skips nothing
+    assert short_log(read_sensor_log(log, 4), Scenario(drones=4, duration_s=5.2), log) is None

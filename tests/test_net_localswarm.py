@@ -206,3 +206,23 @@ def test_a_fault_is_timed_when_launch_began_it_not_when_it_finished(tmp_path, mo
     monkeypatch.setattr(run, "stop", lambda: None)
     run.run()
     assert run.events == [(0.0, "leader 2 (term 1) killed (SIGKILL)")]
+
+
+def test_a_lie_is_timed_when_the_leader_was_told_not_when_launch_began_to_wait(tmp_path, monkeypatch):
+    """lying-leader waits up to LIE_WAIT_S for a leader; its event is when the SIGUSR1 went,
+    which the skipped steps are counted from (timed at the wait's start it was up to 5 s early)."""
+    lie = {"kind": "lying-leader", "at_s": 0.0, "mode": "move", "drone": 2, "offset_m": 5}
+    run = swarm_with(tmp_path, [lie])
+    answers = iter([None, None, (2, 1)])
+    monkeypatch.setattr(localswarm, "current_leader", lambda *a: next(answers))
+    ticks = iter(range(100, 1000))  # each call of time.time() one second on
+    monkeypatch.setattr(localswarm.time, "time", lambda: float(next(ticks)))
+    monkeypatch.setattr(localswarm.time, "sleep", lambda s: None)
+    monkeypatch.setattr(run, "stop", lambda: None)
+    run.start_unix_s = 100.0
+    run.sc = run.sc.model_copy(update={"duration_s": 0.0})
+    run.run()
+    (when, what) = run.events[0]
+    assert what == "leader 2 (term 1) compromised (SIGUSR1): lies (move drone 2)"
+    assert run.logs[2] == ["start", "compromise"]  # run() starts every process first
+    assert when == 6.0  # began at 101, asked at 103, 104, 105; told at 106

@@ -309,22 +309,31 @@ def test_a_node_that_cannot_bind_or_is_misconfigured_exits_with_one_line(tmp_pat
     assert done.returncode == 2, done.stderr
     said = f"error: out: {tmp_path / 'afile'} is a file, not a folder (the swarm file's out)"
     assert done.stderr.strip() == said
+    path.write_text(re.sub(r'(?m)^out = ".*"$', 'out = "/proc/nope"', text))
+    done = run_cli("node", "--id", "4", "--swarm", str(path), timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().startswith("error: out: cannot create /proc/nope (")
+    assert done.stderr.strip().endswith("the swarm file's out)")
 
 
 def test_a_node_with_no_step_to_fly_says_so_in_one_line(tmp_path):
     """A start time whose scenario has ended exited 0 in silence; a step of 1 ms, shorter
-    than the leader's wait for reports, sent reports for 12 s and applied nothing."""
+    than the Raft tick, sent reports for 12 s and applied nothing. (A step shorter than the
+    leader's 60 ms wait for reports is not refused: 20 Hz works.)"""
     scenario = tmp_path / "scenario-src.toml"
     scenario.write_text(SCENARIO.format(n=4, duration=4))
     path, _ = prepare_swarm(tmp_path / "old", scenario, 4, time.time() - 100)
     done = run_cli("node", "--id", "1", "--swarm", str(path), timeout=60)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert "start_unix_s: step 0 was at" in done.stderr and "nothing left to fly" in done.stderr
+    from swarmraft.net.node import step_too_short
+
+    assert step_too_short(0.05, 10.0) is None  # 20 Hz on the 10 ms tick
     path, _ = prepare_swarm(tmp_path / "fast", scenario, 4, time.time() + 60)
     path.write_text(re.sub(r"(?m)^start_unix_s", "step_s = 0.001\nstart_unix_s", path.read_text()))
     done = run_cli("node", "--id", "1", "--swarm", str(path), timeout=60)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
-    assert "step_s: a step of 1 ms is shorter than the leader's wait for reports (60 ms" in done.stderr
+    assert "step_s: a step of 1 ms is shorter than the Raft tick (10 ms): give at least 0.01 s" in done.stderr
     # a start time in milliseconds: the node waits, and says how long
     path, _ = prepare_swarm(tmp_path / "ms", scenario, 4, time.time() * 1000)
     cmd = [sys.executable, "-m", "swarmraft", "node", "--id", "1", "--swarm", str(path)]
@@ -533,3 +542,27 @@ def test_a_role_change_is_logged_for_node_v(caplog):
         DroneHost._note_role(host)  # no change: nothing more
     assert seen == [("role", {"role": "leader", "term": 4, "leader": 3})]
     assert [r.getMessage() for r in caplog.records] == ["drone 3 is leader in term 4, leader 3"]
+
+
+def test_launch_stopped_before_step_0_writes_no_results(tmp_path):
+    """A launch interrupted while its drones wait for step 0 flew nothing: it says so and
+    writes no summary (it summarised a skipped step 0)."""
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=20))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "swarmraft", "launch", "--scenario", str(scenario), "--out", str(out)]
+    launch = subprocess.Popen(
+        [*cmd, "--start-delay", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not (out / "swarm.toml").exists():
+            time.sleep(0.1)
+        time.sleep(1.0)
+        launch.send_signal(signal.SIGTERM)
+        stdout, stderr = launch.communicate(timeout=60)
+    finally:
+        launch.kill()
+    assert launch.returncode == 143, stdout + stderr
+    assert "interrupted (SIGTERM) before step 0: nothing flown, nothing written" in stderr
+    assert not (out / "summary.json").exists() and not (out / "steps.csv").exists()

@@ -110,8 +110,7 @@ def print_mission_summary(summary: dict) -> None:
     print_wrapped(
         f"committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
         f"(longest run {s['longest_skipped_run']}: {sk['before_first_record']} before the first record, "
-        f"{sk['after_fault']} from the step before a fault to {FAULT_SKIP_WINDOW_S:g} s after it, "
-        f"{unexplained}); "
+        f"{sk['after_fault']} within {FAULT_SKIP_WINDOW_S:g} s after a fault, {unexplained}); "
         f"records identical on all nodes: {'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}",
         2,
     )

@@ -98,11 +98,14 @@ def node(drone_id: int, swarm_path: Path, verbose: bool) -> None:
 
 
 def short_log(sensor_log, sc, path: Path) -> str | None:  # noqa: ANN001 (SensorLog, Scenario)
-    """What launch says when a replayed log ends before the scenario's last step (None: it
-    covers it)."""
+    """What launch says when a replayed log ends before the scenario's last step, beyond what
+    its last lines serve (the replay source's max_age_s, launch's default) (None: it covers it)."""
+    from swarmraft.net.swarmfile import ReplaySourceConfig
+
+    serves = ReplaySourceConfig.model_fields["max_age_s"].default
     last = float(sensor_log.t_s.max()) if sensor_log.t_s.size else 0.0
     flown = sc.steps * sc.dt_s
-    if last + sc.dt_s >= flown - 1e-9:
+    if last + serves >= flown - 1e-9:
         return None
     return (
         f"{path} ends at {last:g} s and the scenario flies {flown:g} s: the steps after its end "
@@ -198,6 +201,10 @@ def launch(
         raise click.BadParameter(
             f"{out} holds a swarm already ({', '.join(held)}); choose another folder", param_hint="--out"
         )
+    from swarmraft.net.node import step_too_short
+
+    if why := step_too_short(sc.dt_s, sc.raft.tick_ms):  # as each drone would refuse it, before they start
+        raise click.BadParameter(f"dt_s: {why}", param_hint="--scenario")
     if start_delay is not None and not math.isfinite(start_delay):
         raise click.BadParameter(
             f"{start_delay}: give a finite number of seconds", param_hint="--start-delay"
@@ -249,8 +256,13 @@ def launch(
     if follow is not None:
         follow.stop()
     # an interrupted run is summarised over the steps it reached (the others were not skipped:
-    # they never came)
+    # they never came); one stopped before step 0 reached none
     flown = run.steps_flown()
+    if flown == 0:
+        if session is not None:
+            session.stop()
+        err_console.print(f"interrupted ({run.signal_name}) before step 0: nothing flown, nothing written")
+        sys.exit(143 if run.signal_name == "SIGTERM" else 130)
     g = gather_steps(run.nodes_dir, n, flown - 1, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()
     world = world or ScenarioWorld.build(sc)

@@ -179,8 +179,9 @@ class JointParams(IntegrityParams):
         description="an alarm verdict, or a degenerate one that accuses drones, tries every "
         "trusted set leaving out at most f_max drones, smallest exclusion first, where all of them "
         "are at most this many sets (64 at n = 7, 256 at 9, 1,024 at 11, 4,096 at 13; fewer: no "
-        "search); the default 64 searches swarms of up to 7 drones (at most 50 ms a searched step: "
-        "benchmarks/bench_set_search.py); 0: off",
+        "search); the default 64 searches swarms of up to 7 drones with the default f_max (at most "
+        "50 ms a searched step: benchmarks/bench_set_search.py; a smaller f_max reaches further: "
+        "f_max = 1 up to 63 drones, 160-176 ms a searched step at n = 63); 0: off",
     )
     search_budget: int | None = Field(
         None,

@@ -142,7 +142,8 @@ def efficiency_interval(
     chunk = max(1, 2_000_000 // m)  # resamples drawn at once: at most 2e6 indices in memory
     for lo in range(0, resamples, chunk):
         idx = rng.integers(0, m, size=(min(chunk, resamples - lo), m))
-        ratios[lo : lo + idx.shape[0]] = sq[idx].sum(axis=1) / bound[idx].sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a resample of zero bounds only: inf
+            ratios[lo : lo + idx.shape[0]] = sq[idx].sum(axis=1) / bound[idx].sum(axis=1)
     tail = (1 - level) / 2
     low, high = np.quantile(np.sqrt(ratios), [tail, 1 - tail])
     return float(low), float(high)

@@ -281,24 +281,23 @@ def _majority_warnings(log: MissionLog) -> list[str]:
 
 #: A skipped step at most this long after an event of the mission (a fault, or what it set
 #: off: a promotion, a removal) is put down to it: a new leader comes within two election
-#: timeouts (0.6 s), a committee change or a restarted drone's catch-up takes longer. So is
-#: the step just before the event, whose record was on its way when it came: on processes a
-#: leader SIGKILLed at 20 s took step 199 (19.9 s) with it.
+#: timeouts (0.6 s), a committee change or a restarted drone's catch-up takes longer. In a
+#: networked run so is the step just before the event (`MissionLog.in_flight_s`), whose
+#: record was on its way when it came: a leader SIGKILLed at 20 s took step 199 (19.9 s) with it.
 FAULT_SKIP_WINDOW_S = 2.0
 
 
 def skipped_causes(log: MissionLog) -> dict[str, Any]:
     """Each skipped step put down to one cause: before the first committed record (the first
-    election), from one step before an event of the mission to FAULT_SKIP_WINDOW_S after it,
-    or neither: unexplained (the first 20 listed by time)."""
+    election), from ``log.in_flight_s`` before an event of the mission (0 in the simulator)
+    to FAULT_SKIP_WINDOW_S after it, or neither: unexplained (the first 20 listed by time)."""
     skipped = ~log.committed
     done = np.flatnonzero(log.committed)
     first = done[0] if done.size else len(log.t)
     before = skipped & (np.arange(len(log.t)) < first)
     near = np.zeros(len(log.t), dtype=bool)
-    step = float(log.t[1] - log.t[0]) if len(log.t) > 1 else 0.0
     for t, _ in log.events:
-        near |= (log.t >= t - step - 1e-9) & (log.t <= t + FAULT_SKIP_WINDOW_S + 1e-9)
+        near |= (log.t >= t - log.in_flight_s - 1e-9) & (log.t <= t + FAULT_SKIP_WINDOW_S + 1e-9)
     after = skipped & ~before & near
     other = skipped & ~before & ~after
     return {

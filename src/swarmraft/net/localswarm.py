@@ -76,6 +76,8 @@ class LocalSwarm:
     unstoppable: list[int] = field(default_factory=list)  # drones SIGKILLed at the end
     interrupted: bool = False
     stopped_s: float = 0.0  # s after step 0 at the interrupt
+    signal_name: str = "SIGINT"  # what interrupted it (`run_stoppable`)
+    effect_at: float | None = None  # unix time the running fault action took effect, if it waited
     liar: int | None = None  # the drone told to lie (lying-leader fault)
 
     def __post_init__(self) -> None:
@@ -196,6 +198,7 @@ class LocalSwarm:
                 time.sleep(0.05)
         if lead is None:
             return f"lying-leader: no leader known within {LIE_WAIT_S:g} s, nobody compromised"
+        self.effect_at = time.time()  # after the wait for a leader: when it was told to lie
         self.procs[lead[0]].compromise()
         self.liar = lead[0]
         f = next(f for f in self.sc.fault if f.kind == "lying-leader")
@@ -246,9 +249,11 @@ class LocalSwarm:
                     time.sleep(0.01)
                 # the time the action began: reading who leads, say, takes a tenth of a
                 # second, and a fault's skipped steps are counted from its time
-                began = round(time.time() - self.start_unix_s, 2)
+                began = time.time()
+                self.effect_at = None  # an action that waits first (lying-leader) says when it acted
                 what = a.run()
-                self.events.append((began, what))
+                at = self.effect_at if self.effect_at is not None else began
+                self.events.append((round(at - self.start_unix_s, 2), what))
                 self.say(f"{a.at_s:g} s: {what}")
             end = self.start_unix_s + sc.steps * sc.dt_s + END_WAIT_S
             while any(p.alive for p in self.procs.values()) and time.time() < end:
@@ -265,7 +270,9 @@ class LocalSwarm:
         S = self.sc.steps + 1
         if not self.interrupted:
             return S
-        return max(1, min(S, int(self.stopped_s // self.sc.dt_s) + 1))  # step 0 at least: a summary
+        if self.stopped_s < 0:
+            return 0
+        return min(S, int(self.stopped_s // self.sc.dt_s) + 1)
 
     def run_stoppable(self) -> None:
         """`run`, with SIGTERM handled as Ctrl-C is (every drone stopped, the results written,
@@ -276,7 +283,6 @@ class LocalSwarm:
             self.signal_name = "SIGTERM"
             raise KeyboardInterrupt
 
-        self.signal_name = "SIGINT"
         before = signal.signal(signal.SIGTERM, on_term)
         try:
             self.run()

@@ -73,6 +73,7 @@ def launch_log(
     ins_aligned_in_outages(log, world.drift)
     log.detector_params = dict(world.protocol.detector_params)
     log.events = list(events)
+    log.in_flight_s = dt  # the step before a fault: its record was on its way when it landed
     log.raft_messages = np.zeros(S, int)
     log.report_messages = np.zeros(S, int)
     step_start = start_unix_s + np.arange(S) * dt

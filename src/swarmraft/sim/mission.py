@@ -67,6 +67,10 @@ class MissionLog:
     audit: dict = field(default_factory=dict)  # the audit's counts (`Mission.audit_summary`)
     # (S, n) bool: the drone is in the swarm (joined and not left); None: every drone always
     member: np.ndarray | None = None
+    # s before an event whose skipped steps are put down to it too: on processes a step's
+    # record can be on its way when a fault lands (a networked run: one step); 0 in the
+    # simulator, where a fault cannot reach back
+    in_flight_s: float = 0.0
 
     def in_swarm(self) -> np.ndarray:
         """(S, n) bool: ``member``, or every drone at every step when nobody joins or leaves."""

@@ -101,7 +101,10 @@ class LocalSwarm:
         warm_up_detector(ScenarioWorld.build(self.sc))
         took = time.perf_counter() - t0
         if took > 5.0:
-            self.say(f"compiled the detector's kernels in {took:.0f} s (once after an install)")
+            det = self.sc.protocol.detector
+            self.say(
+                f"compiled the {det} detector's kernels in {took:.0f} s (once per detector after an install)"
+            )
         delay = default_start_delay_s(n) if self.start_delay_s is None else self.start_delay_s
         self.start_delay_s = delay
         ports = free_udp_ports(2 * n)  # the drones' and the relay's, all distinct

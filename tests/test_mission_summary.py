@@ -290,3 +290,6 @@ def test_a_log_cut_to_its_first_steps_keeps_only_what_they_hold(small):
     assert len(small.t) > k and cut.events == [] and small.events == [(4.0, "drone 6 crashed")]
     s = summarize(cut, error_series(cut))
     assert s["committed_steps"] + s["skipped_steps"] == k
+    assert [d["drone"] for d in s["detections"]] == [3]  # its spoof began at 1 s
+    # cut before the spoof began: not a spoof missed, none at all
+    assert summarize(small.first_steps(8), error_series(small.first_steps(8)))["detections"] == []

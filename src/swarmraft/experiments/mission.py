@@ -358,7 +358,15 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
     honest = ~spoof_ever
     committed = int(log.committed.sum())
     per_step_min = 2 * (n - 1)
-    detections = [_spoof_detection(log, errors, k, d) for k, sp in enumerate(sc.spoof) for d in sp.drones]
+    # the spoofs that began within the log (a launch stopped early is cut before the later ones:
+    # they were not missed, they never came)
+    end = float(log.t[-1]) if len(log.t) else -np.inf
+    detections = [
+        _spoof_detection(log, errors, k, d)
+        for k, sp in enumerate(sc.spoof)
+        if sp.start_s <= end + 1e-9
+        for d in sp.drones
+    ]
     wrong = wrong_partition(log)
     seen = judged(log)
     wrong_steps = [

@@ -37,10 +37,10 @@ def mode(path: Path) -> int:
 
 
 def test_keygen_writes_a_private_key_per_drone_and_one_public_key_file(cwd):
-    r = keygen("--n", "3", "--out", "k")
+    r = keygen("--n", "4", "--out", "k")
     names = sorted(p.name for p in (cwd / "k").iterdir())
-    assert names == ["drone-1.key", "drone-2.key", "drone-3.key", "swarm-keys.toml"]
-    for i in (1, 2, 3):
+    assert names == ["drone-1.key", "drone-2.key", "drone-3.key", "drone-4.key", "swarm-keys.toml"]
+    for i in (1, 2, 3, 4):
         assert len((cwd / "k" / f"drone-{i}.key").read_bytes()) == 32
     assert "k/swarm-keys.toml" in r.output
     assert "k/drone-1.key" in r.output
@@ -50,7 +50,7 @@ def test_keygen_writes_a_private_key_per_drone_and_one_public_key_file(cwd):
 def test_private_keys_are_exactly_mode_0600_whatever_the_umask(cwd, umask):
     old = os.umask(umask)
     try:
-        keygen("--n", "2", "--out", "k")
+        keygen("--n", "4", "--out", "k")
     finally:
         os.umask(old)
     assert mode(cwd / "k" / "drone-1.key") == 0o600
@@ -77,50 +77,51 @@ def test_the_public_file_lists_every_drones_public_key(cwd):
 
 
 def test_generated_keys_sign_datagrams_the_swarm_accepts(cwd):
-    keygen("--n", "3", "--out", "k")
+    keygen("--n", "4", "--out", "k")
     seed, public = keys.load_drone_keys(cwd / "k", 2)
     data = Signer(2, seed).seal(Message(MsgType.HEARTBEAT, 2, 1, 1))
     assert Verifier(public, own_id=1).check(data).__class__.__name__ == "Accepted"
 
 
 def test_keygen_refuses_to_overwrite_keys(cwd):
-    keygen("--n", "2", "--out", "k")
-    line = fails_cleanly(["keygen", "--n", "3", "--out", "k"], "--out", cwd)
+    keygen("--n", "4", "--out", "k")
+    line = fails_cleanly(["keygen", "--n", "5", "--out", "k"], "--out", cwd)
     assert "drone-1.key" in line and "--force" in line
 
 
 def test_keygen_refuses_to_overwrite_the_public_file_alone(cwd):
     (cwd / "k").mkdir()
     (cwd / "k" / "swarm-keys.toml").write_text("mine\n")
-    line = fails_cleanly(["keygen", "--n", "2", "--out", "k"], "--out", cwd)
+    line = fails_cleanly(["keygen", "--n", "4", "--out", "k"], "--out", cwd)
     assert "swarm-keys.toml" in line
 
 
 def test_keygen_force_replaces_every_key(cwd):
-    keygen("--n", "2", "--out", "k")
+    keygen("--n", "4", "--out", "k")
     before = tree(cwd)
     (cwd / "k" / "drone-1.key").chmod(0o644)
-    keygen("--n", "2", "--out", "k", "--force")
+    keygen("--n", "4", "--out", "k", "--force")
     after = tree(cwd)
     assert after.keys() == before.keys()
     assert all(after[k] != before[k] for k in after if k.endswith(".key"))
     assert mode(cwd / "k" / "drone-1.key") == 0o600
 
 
-@pytest.mark.parametrize("n", ["0", "-3", "two"])
-def test_keygen_needs_at_least_one_drone(cwd, n):
+@pytest.mark.parametrize("n", ["0", "-3", "two", "3", "257"])
+def test_keygen_needs_a_scenarios_number_of_drones(cwd, n):
+    """4 to 256, as a scenario: keys for 3 drones fly no swarm (it took them)."""
     fails_cleanly(["keygen", "--n", n, "--out", "k"], "--n", cwd)
 
 
 def test_keygen_out_cannot_be_a_file(cwd):
     (cwd / "f").write_text("x")
-    line = fails_cleanly(["keygen", "--n", "2", "--out", "f"], "--out", cwd)
+    line = fails_cleanly(["keygen", "--n", "4", "--out", "f"], "--out", cwd)
     assert "f is a file, not a folder" in line
-    fails_cleanly(["keygen", "--n", "2", "--out", "f/sub"], "--out", cwd)
+    fails_cleanly(["keygen", "--n", "4", "--out", "f/sub"], "--out", cwd)
 
 
 def test_keygen_out_cannot_be_empty(cwd):
-    fails_cleanly(["keygen", "--n", "2", "--out", ""], "--out", cwd)
+    fails_cleanly(["keygen", "--n", "4", "--out", ""], "--out", cwd)
 
 
 def test_keygen_refuses_an_unwritable_folder(cwd, monkeypatch):
@@ -129,7 +130,7 @@ def test_keygen_refuses_an_unwritable_folder(cwd, monkeypatch):
     # as root, mode bits do not stop a write: pretend the folder is read-only
     ro = (cwd / "ro").resolve()
     monkeypatch.setattr(os, "access", lambda p, m, **kw: Path(p).resolve() != ro and real_access(p, m))
-    line = fails_cleanly(["keygen", "--n", "2", "--out", "ro/k"], "--out", cwd)
+    line = fails_cleanly(["keygen", "--n", "4", "--out", "ro/k"], "--out", cwd)
     assert "not writable" in line
 
 

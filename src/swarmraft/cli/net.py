@@ -22,9 +22,16 @@ def _nearest_existing(path: Path) -> Path:
     return Path(".")
 
 
+def _scenario_drones() -> click.IntRange:
+    """--n's range: a scenario's (4-256 drones; keys for fewer fly no swarm)."""
+    from swarmraft.sim.scenario import SCENARIO_DRONES
+
+    return click.IntRange(*SCENARIO_DRONES)
+
+
 @main.command("keygen")
 @click.option(
-    "--n", "n", type=click.IntRange(min=1), required=True, help="number of drones; their ids are 1..N"
+    "--n", "n", type=_scenario_drones(), required=True, help="number of drones (4-256); their ids are 1..N"
 )
 @click.option(
     "--out", type=OutFolder(), required=True, help="folder for drone-<id>.key and swarm-keys.toml (created)"

@@ -18,6 +18,8 @@ from swarmraft.protocol.committee import check_size
 
 #: the fewest drones a swarm flies with: a join or a leave may never leave fewer in it
 MIN_SWARM = 3
+#: how many drones a scenario has (all of them, those that join later included)
+SCENARIO_DRONES = (4, 256)
 
 #: the faults that act on the drone they name: it must be in the swarm at that time
 _ONE_DRONE = ("crash", "restart", "pause", "transfer-leader")
@@ -190,7 +192,7 @@ class FaultConfig(_Strict):
 class Scenario(_Strict):
     name: str = Field("mission", pattern=NAME_PATTERN, description="names the output folder")
     seed: int = Field(1, ge=0)
-    drones: int = Field(9, ge=4, le=256)
+    drones: int = Field(9, ge=SCENARIO_DRONES[0], le=SCENARIO_DRONES[1])
     duration_s: float = Field(60.0, gt=0)
     dt_s: float = Field(0.1, gt=0, description="step, s (10 Hz)")
     motion: MotionConfig = Field(default_factory=MotionConfig)

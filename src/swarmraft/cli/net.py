@@ -116,7 +116,7 @@ def short_log(sensor_log, sc, path: Path) -> str | None:  # noqa: ANN001 (Sensor
         return None
     return (
         f"{path} ends at {last:g} s and the scenario flies {flown:g} s: the steps after its end "
-        "have no reading once its last lines are max_age_s old (1 s by default: docs/records.md) "
+        f"have no reading once its last lines are max_age_s ({serves:g} s) old (docs/records.md) "
         "and are skipped"
     )
 
@@ -269,7 +269,7 @@ def launch(
         if session is not None:
             session.stop()
         err_console.print(f"interrupted ({run.signal_name}) before step 0: nothing flown, nothing written")
-        sys.exit(143 if run.signal_name == "SIGTERM" else 130)
+        sys.exit(run.exit_status)
     g = gather_steps(run.nodes_dir, n, flown - 1, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()
     world = world or ScenarioWorld.build(sc)
@@ -322,7 +322,7 @@ def launch(
         session.close(result.log, result.errors)
     if run.interrupted:
         err_console.print(f"interrupted ({run.signal_name})")
-        sys.exit(143 if run.signal_name == "SIGTERM" else 130)
+        sys.exit(run.exit_status)
     if not g.all_identical:
         sys.exit(1)
     if g.committed == 0:  # a run with no record is void, whatever its files say

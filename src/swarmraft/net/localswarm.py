@@ -277,6 +277,11 @@ class LocalSwarm:
             return 0
         return min(S, int(self.stopped_s // self.sc.dt_s) + 1)
 
+    @property
+    def exit_status(self) -> int:
+        """An interrupted run's exit status: 128 + the signal's number (130 Ctrl-C, 143 SIGTERM)."""
+        return 128 + int(getattr(signal, self.signal_name))
+
     def run_stoppable(self) -> None:
         """`run`, with SIGTERM handled as Ctrl-C is (every drone stopped, the results written,
         ``interrupted``), so that `kill`, `timeout` or a CI runner stopping launch leaves no

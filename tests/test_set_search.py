@@ -33,7 +33,7 @@ def alarms():
 
 def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(alarms):
     batch, attackers = alarms
-    assert (verify_batch(batch, "joint").status == "alarm").all()
+    assert (verify_batch(batch, "joint", set_search=0).status == "alarm").all()
     v = verify_batch(batch, "joint", set_search=300)
     # trial 1: only the true honest set passes among the sets leaving out at most 4
     assert v.status[0] == "ok" and (v.faulty[0] == attackers[0]).all()
@@ -84,21 +84,29 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     np.testing.assert_array_equal(default.positions, v.positions)
 
 
-def test_the_default_search_covers_swarms_of_up_to_7_drones_only():
-    """`set_search` 64: every set of 7 drones with f_max 3 (64), not of 8 (93) or 9 (256), so
-    the (9, 4) alarm of trial 124 stands as the detector left it."""
+def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(alarms):
+    """`set_search` 4,096: every set of 13 drones with f_max 6 (4,096), not of 14 (6,476);
+    `search_budget` 256: every set of 9 drones with f_max 4 (256), so at n = 9 the default is
+    the whole search: the (9, 4) alarms of trials 1 and 95 get its answers (`ok`,
+    `unidentifiable`), and at 17 drones (65,536 sets) an alarm stands as the detector left it
+    (trial 5 of (17, 8), chunk 0)."""
     from swarmraft.estimation.gnc import JointParams
 
-    assert JointParams().set_search == sum(math.comb(7, k) for k in range(4)) == 64
-    assert sum(math.comb(8, k) for k in range(4)) > 64
-    cfg = build_config("realistic", n=(9,), f=(4,), trials=10000)
-    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, 0)), 1000, 9, 4)
-    batch = snapshot_batch(cfg, d).subset(np.array([124]))
-    default, off = verify_batch(batch, "joint"), verify_batch(batch, "joint", set_search=0)
-    assert default.status[0] == off.status[0] == "alarm"
-    np.testing.assert_array_equal(default.faulty, off.faulty)
+    p = JointParams()
+    assert p.set_search == sum(math.comb(13, k) for k in range(7)) == 4096
+    assert sum(math.comb(14, k) for k in range(7)) > 4096
+    assert p.search_budget == sum(math.comb(9, k) for k in range(5)) == 256
+    batch, _ = alarms
+    default, whole = verify_batch(batch, "joint"), verify_batch(batch, "joint", set_search=300, search_budget=None)
+    assert list(default.status) == list(whole.status) == ["ok", "unidentifiable"]
+    np.testing.assert_array_equal(default.faulty, whole.faulty)
+    np.testing.assert_array_equal(default.positions, whole.positions)
+    cfg = build_config("realistic", n=(17,), f=(8,), trials=1000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 17, 8, 0)), 1000, 17, 8)
+    one = snapshot_batch(cfg, d).subset(np.array([5]))
+    off, default = verify_batch(one, "joint", set_search=0), verify_batch(one, "joint")
+    assert off.status[0] == default.status[0] == "alarm"
     np.testing.assert_array_equal(default.positions, off.positions)
-    assert not (default.faulty[0] == d.attackers[124]).all()  # what the search would change
 
 
 def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival():
@@ -127,7 +135,7 @@ def test_an_alarm_no_set_explains_takes_the_likeliest_set_that_passes_its_residu
         c, t = divmod(trial, 1000)
         d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, c)), 1000, 9, 4)
         batch = snapshot_batch(cfg, d).subset(np.array([t]))
-        assert not (verify_batch(batch, "joint").faulty[0] == d.attackers[t]).all()
+        assert not (verify_batch(batch, "joint", set_search=0).faulty[0] == d.attackers[t]).all()
         v = verify_batch(batch, "joint", set_search=300)
         assert v.status[0] == "alarm" and v.diagnostics["alarm_cause"][0] == "separation test"
         assert (v.faulty[0] == d.attackers[t]).all()
@@ -169,7 +177,7 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
         p = JointParams()
         noise = NoiseModel.of(batch, p, "test")
         sets = np.concatenate([sets_leaving_out(n, k) for k in range(f + 1)])
-        for t in np.flatnonzero(verify_batch(batch, "joint").status == "alarm")[:4]:
+        for t in np.flatnonzero(verify_batch(batch, "joint", set_search=0).status == "alarm")[:4]:
             one = batch.subset(np.array([t]))
             owner = np.zeros(len(sets), int)
             sigma = noise.range_sigma
@@ -199,7 +207,7 @@ def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monke
     monkeypatch.setattr(ss, "given_set", lambda b, p, s: estimated.append(s.copy()) or real(b, p, s))
     for t, accused in ((0, 6), (2, 5)):
         batch = snapshot_batch(cfg, d).subset(np.array([t]))
-        off = verify_batch(batch, "joint")
+        off = verify_batch(batch, "joint", set_search=0)
         assert off.status[0] == "degenerate" and off.faulty[0].sum() == accused
         estimated.clear()
         on = verify_batch(batch, "joint", set_search=5000)

@@ -97,7 +97,8 @@ def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(a
     assert sum(math.comb(14, k) for k in range(7)) > 4096
     assert p.search_budget == sum(math.comb(9, k) for k in range(5)) == 256
     batch, _ = alarms
-    default, whole = verify_batch(batch, "joint"), verify_batch(batch, "joint", set_search=300, search_budget=None)
+    default = verify_batch(batch, "joint")
+    whole = verify_batch(batch, "joint", set_search=300, search_budget=None)
     assert list(default.status) == list(whole.status) == ["ok", "unidentifiable"]
     np.testing.assert_array_equal(default.faulty, whole.faulty)
     np.testing.assert_array_equal(default.positions, whole.positions)

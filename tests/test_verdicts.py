@@ -12,7 +12,10 @@ the full rival search at (9, 4), which made one `clique` verdict of the file uni
 again for `joint`'s re-inclusion test whitened by the GNSS plus the estimate's covariance and
 the drop margin of 3 (8 `joint` arrays: trusted sets of 8 trials, one `line` (9, 4) trial's
 flags; every status the same), and once more when that test fell back to the GNSS-only one
-where the placement is not fixed (against the file before: 8 `joint` arrays, statuses the same)."""
+where the placement is not fixed (against the file before: 8 `joint` arrays, statuses the same),
+and on 2026-12-04 for `joint`'s set search on by default up to 13 drones (5 `joint` arrays of
+one trial, `line` (9, 4) trial 1: still an `alarm`, with the positions and flags of the
+likeliest set that fails only its separation test)."""
 
 import sys
 from pathlib import Path

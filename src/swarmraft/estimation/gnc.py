@@ -189,7 +189,8 @@ class JointParams(IntegrityParams):
         description="set_search: at most this many sets estimated for one verdict (the sets no "
         "estimate could pass are not counted); a verdict whose search needs more stands as it is; "
         "the default 256 is every set at n = 9 (at most 89 ms a searched step at (9, 4), 222 ms at "
-        "(13, 6) on an AMD EPYC); None: no limit",
+        "(13, 6) on an AMD EPYC); None: no limit (--param search_budget=null; in TOML, which has no "
+        "null, a number at least set_search)",
     )
 
 

@@ -6,12 +6,13 @@ its own: a mission's step has 100 ms at 10 Hz. With ``--geometry flat`` (every d
 0.5 m of a plane) or ``line``, the trials of that sweep geometry (in a flat layer most
 verdicts are searched).
 
-With ``--budget B`` the search estimates at most B sets for one verdict (``search_budget``; a
-verdict that needs more stands). The last line gives the median, 90th percentile and
-largest CPU ms over the trials timed, search off and on.
+``--search`` and ``--budget`` default to `joint`'s own defaults (``set_search`` 4,096 sets,
+``search_budget`` 256 sets estimated for one verdict; a verdict that needs more stands);
+``--budget 0`` lifts the budget. The last line gives the median, 90th percentile and largest
+CPU ms over the trials timed, search off and on.
 
-Run: .venv/bin/python benchmarks/bench_set_search.py [--n 9 --f 4 --alarms 4 --search 300] [--geometry flat]
-     [--budget 64]
+Run: .venv/bin/python benchmarks/bench_set_search.py [--n 9 --f 4 --alarms 4] [--search 5000]
+     [--geometry flat] [--budget 64 | --budget 0]
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import time
 import numpy as np
 
 from swarmraft.estimation import verify_batch
+from swarmraft.estimation.gnc import JointParams
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
 
@@ -40,16 +42,22 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=9)
     ap.add_argument("--f", type=int, default=4)
     ap.add_argument("--alarms", type=int, default=4)
-    ap.add_argument("--search", type=int, default=300, help="set_search (sets at most)")
+    defaults = JointParams()
+    ap.add_argument("--search", type=int, default=defaults.set_search, help="set_search (sets at most)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--geometry", choices=["cube", "flat", "line"], default="cube")
-    ap.add_argument("--budget", type=int, default=None, help="search_budget (sets estimated at most)")
+    ap.add_argument(
+        "--budget",
+        type=int,
+        default=defaults.search_budget,
+        help="search_budget (sets estimated at most; 0: no limit)",
+    )
     a = ap.parse_args()
     if not (a.n >= 3 and 1 <= a.f <= (a.n - 1) // 2 and a.alarms >= 1 and a.search >= 1 and a.repeat >= 1):
         ap.error("need n >= 3, 1 <= f <= (n-1)//2, and --alarms, --search, --repeat >= 1")
-    if a.budget is not None and a.budget < 1:
-        ap.error("--budget must be at least 1")
-    on_params = {"set_search": a.search, "search_budget": a.budget}
+    if a.budget < 0:
+        ap.error("--budget must be at least 0 (0: no limit)")
+    on_params = {"set_search": a.search, "search_budget": a.budget or None}
     cfg = build_config("realistic", n=(a.n,), f=(a.f,), trials=1000, geometry=a.geometry)
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, a.n, a.f, 0)), 1000, a.n, a.f)
     batch = snapshot_batch(cfg, d)
@@ -60,7 +68,7 @@ def main() -> None:
         f"joint at ({a.n}, {a.f}), realistic, {a.geometry}: {int(searched.sum())} of 1000 trials searched "
         f"({int((v0.status == 'alarm').sum())} alarm), the first {len(rows)}: CPU ms (best of {a.repeat})"
     )
-    label = f"set_search={a.search}" + (f", budget {a.budget}" if a.budget else "")
+    label = f"set_search={a.search}, " + (f"budget {a.budget}" if a.budget else "no budget")
     print(f"{'trial':>6} {'off':>8} {label:>26}  status off -> on")
     offs, ons = [], []
     for t in rows:

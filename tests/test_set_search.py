@@ -110,6 +110,21 @@ def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(a
     np.testing.assert_array_equal(default.positions, off.positions)
 
 
+def test_the_default_budget_leaves_a_verdict_whose_search_needs_more_sets():
+    """(13, 6), trial 110 of chunk 0: `joint` raises an alarm; the whole search (no budget)
+    finds several explanations, `unidentifiable`, but needs more than the default's 256 sets
+    estimated to know it, so with the default the alarm stands as the detector left it."""
+    cfg = build_config("realistic", n=(13,), f=(6,), trials=1000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 13, 6, 0)), 1000, 13, 6)
+    one = snapshot_batch(cfg, d).subset(np.array([110]))
+    off, default = verify_batch(one, "joint", set_search=0), verify_batch(one, "joint")
+    assert off.status[0] == default.status[0] == "alarm"
+    np.testing.assert_array_equal(default.faulty, off.faulty)
+    np.testing.assert_array_equal(default.positions, off.positions)
+    whole = verify_batch(one, "joint", search_budget=None)
+    assert whole.status[0] == "unidentifiable"
+
+
 def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival():
     """Flat layer (7, 3), trial 253: `joint` is right and `degenerate`. The search's smallest
     explanation trusts spoofed drone 3 and places it 25 m off, within its levels (an `ok`
@@ -237,7 +252,7 @@ def test_a_search_that_needs_more_estimates_than_its_budget_leaves_the_verdict(a
     estimated = []
     real = ss.given_set
     monkeypatch.setattr(ss, "given_set", lambda b, p, s: estimated.append(len(s)) or real(b, p, s))
-    full = verify_batch(one, "joint", set_search=300)
+    full = verify_batch(one, "joint", set_search=300, search_budget=None)
     need = sum(estimated)
     assert full.status[0] == "ok" and need > 1
     short = verify_batch(one, "joint", set_search=300, search_budget=need - 1)

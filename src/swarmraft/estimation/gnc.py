@@ -180,15 +180,15 @@ class JointParams(IntegrityParams):
         "trusted set leaving out at most f_max drones, smallest exclusion first, where all of them "
         "are at most this many sets (64 at n = 7, 256 at 9, 1,024 at 11, 4,096 at 13; more: no "
         "search); the default 4,096 searches swarms of up to 13 drones with the default f_max, "
-        "search_budget bounding each search (benchmarks/bench_set_search.py; a smaller f_max "
-        "reaches further: f_max = 1 up to 63 drones, 160-176 ms a searched step at n = 63); 0: off",
+        "search_budget bounding each search (benchmarks/bench_set_search.py); a smaller f_max "
+        "reaches further (f_max = 3 up to 29 drones, 2 up to 90, 1 up to 4,095); 0: off",
     )
     search_budget: int | None = Field(
         256,
         ge=1,
         description="set_search: at most this many sets estimated for one verdict (the sets no "
         "estimate could pass are not counted); a verdict whose search needs more stands as it is; "
-        "the default 256 is every set at n = 9 (at most 89 ms a searched step at (9, 4), 222 ms at "
+        "the default 256 is every set at n = 9 (at most 89 ms a searched step at (9, 4), 219 ms at "
         "(13, 6) on an AMD EPYC); None: no limit (--param search_budget=null; in TOML, which has no "
         "null, a number at least set_search)",
     )

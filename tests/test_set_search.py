@@ -102,27 +102,31 @@ def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(a
     assert list(default.status) == list(whole.status) == ["ok", "unidentifiable"]
     np.testing.assert_array_equal(default.faulty, whole.faulty)
     np.testing.assert_array_equal(default.positions, whole.positions)
-    cfg = build_config("realistic", n=(17,), f=(8,), trials=1000)
-    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 17, 8, 0)), 1000, 17, 8)
-    one = snapshot_batch(cfg, d).subset(np.array([5]))
-    off, default = verify_batch(one, "joint", set_search=0), verify_batch(one, "joint")
-    assert off.status[0] == default.status[0] == "alarm"
-    np.testing.assert_array_equal(default.positions, off.positions)
+    _default_leaves_the_alarm(_trial(17, 8, 5))
 
 
 def test_the_default_budget_leaves_a_verdict_whose_search_needs_more_sets():
     """(13, 6), trial 110 of chunk 0: `joint` raises an alarm; the whole search (no budget)
     finds several explanations, `unidentifiable`, but needs more than the default's 256 sets
     estimated to know it, so with the default the alarm stands as the detector left it."""
-    cfg = build_config("realistic", n=(13,), f=(6,), trials=1000)
-    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 13, 6, 0)), 1000, 13, 6)
-    one = snapshot_batch(cfg, d).subset(np.array([110]))
+    one = _trial(13, 6, 110)
+    _default_leaves_the_alarm(one)
+    assert verify_batch(one, "joint", search_budget=None).status[0] == "unidentifiable"
+
+
+def _trial(n: int, f: int, t: int):  # noqa: ANN202 (a SnapshotBatch)
+    """Trial t of chunk 0 of the sweep's realistic (n, f) cell (seed 2025), alone."""
+    cfg = build_config("realistic", n=(n,), f=(f,), trials=1000)
+    d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, n, f, 0)), 1000, n, f)
+    return snapshot_batch(cfg, d).subset(np.array([t]))
+
+
+def _default_leaves_the_alarm(one) -> None:  # noqa: ANN001
+    """`joint` with its defaults gives ``one`` the alarm it gives without the search."""
     off, default = verify_batch(one, "joint", set_search=0), verify_batch(one, "joint")
     assert off.status[0] == default.status[0] == "alarm"
     np.testing.assert_array_equal(default.faulty, off.faulty)
     np.testing.assert_array_equal(default.positions, off.positions)
-    whole = verify_batch(one, "joint", search_budget=None)
-    assert whole.status[0] == "unidentifiable"
 
 
 def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival():

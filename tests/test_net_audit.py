@@ -144,3 +144,44 @@ def test_a_censoring_leader_is_found_and_replaced(tmp_path):
     # every honest voter held drone 2's reports (the fan-out) and saw them left out
     assert summary["censorship_findings"] > 0 and summary["refused_entries"] == 0, summary
     assert summary["other_leader_s"] is not None, summary
+
+
+def test_a_leader_keeps_its_quorum_while_its_voters_audit_slowly(tmp_path, monkeypatch):
+    """Every record's re-run made to take 0.3 s (twice the 150 ms election timeout): the
+    voters audit beside their Raft nodes (`DroneHost._preaudit`) and answer their leader's
+    heartbeats meanwhile, so the first leader keeps its term while records commit. When the
+    node waited for its audit (the append stepped in the audit thread), nine voters' 276-308
+    ms audits of a searched step on 2 cores cost their leader its quorum (docs/audit.md); this
+    swarm's term then rose with every record."""
+    from swarmraft.protocol.audit import Auditor
+
+    real = Auditor._evidence_uncached
+
+    def slow(self, rec, body):
+        time.sleep(0.3)
+        return real(self, rec, body)
+
+    monkeypatch.setattr(Auditor, "_evidence_uncached", slow)
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(mode="move"))
+    path, _ = prepare_swarm(tmp_path / "run", scenario, N, time.time() + 3.0)
+    hosts = [DroneHost(load_swarm(path), i) for i in range(1, N + 1)]
+    seen: dict = {}
+
+    async def main():
+        runs = [asyncio.create_task(h.run()) for h in hosts]
+        try:
+            await until(lambda: leader(hosts) is not None and committed(leader(hosts)) >= 1, "a record")
+            seen["first"] = leader(hosts).node.term
+            await until(lambda: all(hasattr(h, "node") and committed(h) >= 8 for h in hosts), "8 records")
+            seen["terms"] = [h.node.term for h in hosts]
+            seen["audits"] = [h.counters["audit_count"] for h in hosts]
+        finally:
+            for h in hosts:
+                if hasattr(h, "_stopped"):
+                    h.stop("test over")
+            await asyncio.wait_for(asyncio.gather(*runs, return_exceptions=True), 60)
+
+    asyncio.run(main())
+    assert seen["terms"] == [seen["first"]] * N, seen
+    assert sum(a > 0 for a in seen["audits"]) >= N - 1  # the voters did audit, slowly

@@ -52,9 +52,9 @@ async def until(predicate, what: str) -> None:
         await asyncio.sleep(0.05)
 
 
-def run_swarm(tmp_path, mode: str, after_lie):
-    """Five hosts; once every one committed HONEST_RECORDS, their audit counts are taken and
-    the leader is told to lie; ``after_lie(hosts, liar, term)`` says when to stop."""
+def swarm_of_hosts(tmp_path, mode: str, watch):
+    """Five hosts of SCENARIO (lying ``mode``), run until ``await watch(hosts, seen)``
+    returns, then stopped; the hosts, what ``watch`` put in ``seen``, and the swarm file."""
     scenario = tmp_path / "scenario-src.toml"
     scenario.write_text(SCENARIO.format(mode=mode))
     path, swarm = prepare_swarm(tmp_path / "run", scenario, N, time.time() + 3.0)
@@ -64,16 +64,7 @@ def run_swarm(tmp_path, mode: str, after_lie):
     async def main():
         runs = [asyncio.create_task(h.run()) for h in hosts]
         try:
-            await until(
-                lambda: all(hasattr(h, "node") and committed(h) >= HONEST_RECORDS for h in hosts),
-                "honest records",
-            )
-            seen["honest"] = [h.audit_counts() for h in hosts]
-            await until(lambda: leader(hosts) is not None, "a leader")
-            liar = leader(hosts)
-            seen["liar"], seen["term"] = liar.id, liar.node.term
-            liar.compromise()
-            await until(lambda: after_lie(hosts, liar, seen["term"]), "the liar replaced")
+            await watch(hosts, seen)
         finally:
             for h in hosts:
                 if hasattr(h, "_stopped"):
@@ -82,6 +73,25 @@ def run_swarm(tmp_path, mode: str, after_lie):
 
     asyncio.run(main())
     return hosts, seen, swarm
+
+
+def run_swarm(tmp_path, mode: str, after_lie):
+    """Five hosts; once every one committed HONEST_RECORDS, their audit counts are taken and
+    the leader is told to lie; ``after_lie(hosts, liar, term)`` says when to stop."""
+
+    async def watch(hosts, seen):
+        await until(
+            lambda: all(hasattr(h, "node") and committed(h) >= HONEST_RECORDS for h in hosts),
+            "honest records",
+        )
+        seen["honest"] = [h.audit_counts() for h in hosts]
+        await until(lambda: leader(hosts) is not None, "a leader")
+        liar = leader(hosts)
+        seen["liar"], seen["term"] = liar.id, liar.node.term
+        liar.compromise()
+        await until(lambda: after_lie(hosts, liar, seen["term"]), "the liar replaced")
+
+    return swarm_of_hosts(tmp_path, mode, watch)
 
 
 def replaced(hosts, liar, term, mode="move") -> bool:
@@ -162,26 +172,14 @@ def test_a_leader_keeps_its_quorum_while_its_voters_audit_slowly(tmp_path, monke
         return real(self, rec, body)
 
     monkeypatch.setattr(Auditor, "_evidence_uncached", slow)
-    scenario = tmp_path / "scenario-src.toml"
-    scenario.write_text(SCENARIO.format(mode="move"))
-    path, _ = prepare_swarm(tmp_path / "run", scenario, N, time.time() + 3.0)
-    hosts = [DroneHost(load_swarm(path), i) for i in range(1, N + 1)]
-    seen: dict = {}
 
-    async def main():
-        runs = [asyncio.create_task(h.run()) for h in hosts]
-        try:
-            await until(lambda: leader(hosts) is not None and committed(leader(hosts)) >= 1, "a record")
-            seen["first"] = leader(hosts).node.term
-            await until(lambda: all(hasattr(h, "node") and committed(h) >= 8 for h in hosts), "8 records")
-            seen["terms"] = [h.node.term for h in hosts]
-            seen["audits"] = [h.counters["audit_count"] for h in hosts]
-        finally:
-            for h in hosts:
-                if hasattr(h, "_stopped"):
-                    h.stop("test over")
-            await asyncio.wait_for(asyncio.gather(*runs, return_exceptions=True), 60)
+    async def watch(hosts, seen):
+        await until(lambda: leader(hosts) is not None and committed(leader(hosts)) >= 1, "a record")
+        seen["first"] = leader(hosts).node.term
+        await until(lambda: all(hasattr(h, "node") and committed(h) >= 8 for h in hosts), "8 records")
+        seen["terms"] = [h.node.term for h in hosts]
+        seen["audits"] = [h.counters["audit_count"] for h in hosts]
 
-    asyncio.run(main())
+    _, seen, _ = swarm_of_hosts(tmp_path, "move", watch)
     assert seen["terms"] == [seen["first"]] * N, seen
     assert sum(a > 0 for a in seen["audits"]) >= N - 1  # the voters did audit, slowly

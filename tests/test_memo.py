@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+import sys
+import threading
 
 import pytest
 
@@ -17,6 +19,36 @@ def test_a_bounded_memo_forgets_its_oldest_items():
     assert list(m.items()) == [(2, 4), (3, 9), (4, 16)]
     with pytest.raises(ValueError, match="limit"):
         BoundedMemo(0)
+
+
+def test_a_bounded_memo_written_from_several_threads_stays_whole_and_bounded():
+    """A networked drone writes the same memos from its event loop and its audit thread
+    (record digests, signature checks, re-runs). Forgetting the oldest item is two steps (find
+    it, delete it): without a lock a thread switch between them raised KeyError or
+    "dictionary changed size during iteration" in a writer, and the memo outgrew its limit."""
+    m = BoundedMemo(2)
+    errors: list[str] = []
+
+    def write(base: int) -> None:
+        try:
+            for i in range(30_000):
+                m[(base, i)] = i
+        except Exception as e:  # noqa: BLE001 - any exception is the failure
+            errors.append(repr(e))
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads as often as the interpreter can
+    try:
+        threads = [threading.Thread(target=write, args=(b,)) for b in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert errors == []
+    assert len(m) <= 2
+    assert all(m[k] == k[1] for k in m)
 
 
 def test_a_record_digest_is_its_sha256_computed_once_per_bytes_object(monkeypatch):

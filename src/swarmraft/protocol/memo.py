@@ -4,23 +4,32 @@ mission's length."""
 from __future__ import annotations
 
 import hashlib
+import threading
 from typing import Any
 
 
 class BoundedMemo(dict):
     """A dict that forgets its oldest item (by insertion) once it holds more than ``limit``.
-    For a memo of a pure function only: a forgotten item is computed again, to the same value."""
+    For a memo of a pure function only: a forgotten item is computed again, to the same value.
+
+    Writes may come from several threads (a networked drone's event loop and its audit
+    thread share the record digests, signature checks and re-runs): an insertion and the
+    forgetting it causes (find the oldest, delete it) hold a lock, so that no writer sees
+    another's half-done forgetting. Reads (``get``, ``in``, ``[]``) are single dict
+    operations and need none."""
 
     def __init__(self, limit: int) -> None:
         if limit < 1:
             raise ValueError("BoundedMemo: limit must be >= 1")
         super().__init__()
         self.limit = limit
+        self._lock = threading.Lock()
 
     def __setitem__(self, key: Any, value: Any) -> None:
-        super().__setitem__(key, value)
-        if len(self) > self.limit:
-            del self[next(iter(self))]
+        with self._lock:
+            super().__setitem__(key, value)
+            while len(self) > self.limit:
+                del self[next(iter(self))]
 
 
 #: record bytes objects whose digest `record_digest` remembers (the newest)

@@ -528,3 +528,41 @@ def test_a_malformed_signed_report_is_kept_by_no_one(change, why) -> None:
     carried = tuple(bad if q.drone == 4 else q for q in honest.reports)
     got, reason = v.audit.check(resealed(replace(honest, reports=carried), keys), 1)
     assert got is None and reason == f"drone 5's report: {why}"
+
+
+@pytest.mark.parametrize("scale", [1e300, np.inf])
+def test_a_record_whose_re_run_raises_is_refused_and_its_leader_deposed(scale: float) -> None:
+    """A leader signs the prior it likes; one that makes the verification raise (positions of
+    1e300 or inf: a LinAlgError in the solver) is a record that does not follow from its
+    evidence. Before, the exception left the validator through `RaftNode.step`: no
+    acknowledgement, no refusal, no election, and the voter followed the liar for good."""
+    v, chain, keys = voter_through(12)
+    rec = StepRecord.decode(chain[12])
+    data = resealed(replace(rec, prior_positions=rec.prior_positions * scale), keys)
+    got, reason = v.audit.check(data, 1)
+    assert got is None and reason.startswith("re-run failed")
+    node = RaftNode(RaftConfig(3, (1, 2)), MemoryStorage(), random.Random(0), validate=v.audit.validate)
+    node.step(Message(MsgType.HEARTBEAT, 2, 3, 1))
+    node.advance(node.ready())
+    node.step(Message(MsgType.APP, 2, 3, 1, log_term=0, index=0, entries=(Entry(1, 1, data),), commit=0))
+    rd = node.ready()
+    assert node.status.refused == 1 and not rd.entries
+    assert node.role == "candidate" and node.term == 2  # the successor of leader 2 campaigns
+
+
+def test_a_node_says_which_appends_it_would_drop_unread() -> None:
+    """`RaftNode.ignores`: a host that audits an append before stepping it (the networked
+    drone) skips the audit of appends the node drops unread: the deposed leader's (a liar
+    sends its next records while its first lie is audited) and a stale term's."""
+    node, _ = refusing(1, (2, 3))  # deposed leader 2 in term 1
+    from_liar = Message(MsgType.APP, 2, 1, 1, log_term=0, index=0, entries=(Entry(1, 1, b"y"),), commit=0)
+    assert node.ignores(from_liar)
+    assert node.ignores(replace(from_liar, type=MsgType.HEARTBEAT, entries=()))
+    assert not node.ignores(replace(from_liar, type=MsgType.VOTE))  # not an append
+    assert not node.ignores(replace(from_liar, frm=3, term=2))  # the next leader's
+    node.step(Message(MsgType.HEARTBEAT, 3, 1, 2))  # leader 3 in term 2
+    assert node.ignores(replace(from_liar, frm=3, term=1))  # a stale term
+    assert not node.ignores(replace(from_liar, frm=3, term=2))
+    before = (node.term, node.lead, node.status.last_index)
+    node.ignores(from_liar)
+    assert (node.term, node.lead, node.status.last_index) == before  # a query only

@@ -228,10 +228,16 @@ def test_hostile_datagrams_are_dropped_and_counted_while_drones_keep_stepping(tm
         s.close()
 
 
-def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path):
+def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path, monkeypatch):
     """Three drone hosts in this process (of a 4-drone swarm): every Raft message, when it is
     handed to the transport, finds what it depends on already in the sender's SQLite storage:
-    its term, the vote it grants, the entries it acknowledges or sends."""
+    its term, the vote it grants, the entries it acknowledges or sends. Each host pins BLAS
+    to one thread as it starts (`blas.pin_one_blas_thread`: its verify and audit threads
+    cannot set it themselves); spied, so this process's BLAS is left as it was."""
+    import swarmraft.net.node as node_module
+
+    pinned = []
+    monkeypatch.setattr(node_module, "pin_one_blas_thread", lambda: pinned.append(1))
     scenario = tmp_path / "scenario-src.toml"
     scenario.write_text(SCENARIO.format(n=4, duration=4))
     path, _ = prepare_swarm(tmp_path / "run", scenario, 4, time.time() + 0.5)
@@ -262,6 +268,7 @@ def test_no_message_leaves_before_the_state_it_depends_on_is_persisted(tmp_path)
         await asyncio.wait_for(asyncio.gather(*(h.run() for h in hosts)), 30)
 
     asyncio.run(main())
+    assert len(pinned) == len(hosts)
     assert not violations, violations[:5]
     assert checked[MsgType.VOTE_RESP] and checked[MsgType.APP_RESP] and checked[MsgType.APP] > 20
     assert all(h.drone.state.records for h in hosts)

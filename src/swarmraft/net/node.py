@@ -46,6 +46,7 @@ import numpy as np
 from nacl.signing import SigningKey, VerifyKey
 from pydantic import ValidationError
 
+from swarmraft.estimation.blas import pin_one_blas_thread
 from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import trusted_estimate
 from swarmraft.estimation.registry import one_line
@@ -92,6 +93,10 @@ END_GRACE_S = 1.5
 REALIGN_STEPS = 5
 #: A drone remembers what it reported this many steps back, for its step file.
 REPORTED_KEPT = 100
+#: Appends held for their audit at most (`_preaudit`); more are dropped as if lost (Raft sends
+#: again what is not acknowledged). Audits slower than the steps would otherwise grow the
+#: queue for as long as a run lasts.
+HELD_APPS = 64
 
 
 class NodeConfigError(ValueError):
@@ -401,6 +406,9 @@ class DroneHost:
     # -- running ----------------------------------------------------------------------------
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
+        # the loop, verify and audit threads all verify: BLAS on one thread for good (a
+        # context in another thread cannot set it once this one has restored it: `blas`)
+        pin_one_blas_thread()
         self.out.mkdir(parents=True, exist_ok=True)
         self._wake = asyncio.Event()
         self.transport = await UDPTransport.bind(*self.entry.bind_address, self._on_datagram)
@@ -650,6 +658,11 @@ class DroneHost:
         if isinstance(got.message, Message):
             m = got.message
             if m.type == MsgType.APP and (self._held_apps or self._audits(m)):
+                if len(self._held_apps) >= HELD_APPS:
+                    # audits slower than the leader sends: dropped as if lost (Raft sends
+                    # again what is not acknowledged)
+                    self.counters["held_apps_dropped"] += 1
+                    return
                 self._held_apps.append(m)
                 self._preaudit()
             else:
@@ -1008,23 +1021,33 @@ class DroneHost:
         once keeps its quorum (stepped in the audit thread, the node waiting for it, nine
         voters' 276-308 ms audits on 2 cores cost their leader its quorum: docs/audit.md).
         Appends wait behind a held one, keeping their order."""
-        if self._preauditing:
+        if self._preauditing or self._stopping:
             return
         while self._held_apps:
             m = self._held_apps[0]
-            data = [e.data for e in m.entries if e.kind == EntryKind.NORMAL] if self._audits(m) else []
+            # an append the node will drop unread (a deposed leader's, a stale term's: the
+            # liar's next records, sent while this drone audited its first lie) is not audited
+            audited = not self.node.ignores(m) and self._audits(m)
+            data = [e.data for e in m.entries if e.kind == EntryKind.NORMAL] if audited else []
             if not data:
                 self._held_apps.popleft()
                 self._push(lambda m=m: self.node.step(m))
                 continue
-            self._preauditing = True
             t0 = time.perf_counter()
             job = self._loop.run_in_executor(self._audit_pool, self._evidence_ahead, data)
+            self._preauditing = True
 
             def done(fut: asyncio.Future, t0: float = t0) -> None:
                 self._preauditing = False
-                if fut.cancelled() or fut.exception() is not None:
-                    self.counters["preaudit_failed"] += 1  # the node's validate checks it again
+                if self._stopping:
+                    return  # the loop is closing: nothing more is stepped or audited
+                if fut.cancelled():
+                    self.counters["preaudit_failed"] += 1
+                elif (exc := fut.exception()) is not None:
+                    # the node's validator checks the record again (and refuses it if that
+                    # raises too: `Auditor.check`)
+                    self.counters["preaudit_failed"] += 1
+                    _logger.error("drone %d: an audit failed", self.id, exc_info=exc)
                 self._time("audit", t0)
                 held = self._held_apps.popleft()
                 self._push(lambda: self.node.step(held))
@@ -1065,8 +1088,10 @@ class DroneHost:
         self._event("censorship", term=term, why=why)
         _logger.warning("drone %d: the leader of term %d censors: %s", self.id, term, why)
 
-        # called in the audit thread: run on the loop's
-        self._loop.call_soon_threadsafe(self._push, lambda: self.node.depose(self.node.lead, term))
+        # called inside the node's step (its validator): deposed once that step is done, the
+        # leader named now (by then the node may have become a pre-candidate, leaderless)
+        lead = self.node.lead
+        self._loop.call_soon(self._push, lambda: self.node.depose(lead, term))
 
     def compromise(self) -> None:
         """SIGUSR1: from now on this drone lies whenever it leads, as the scenario's

@@ -227,7 +227,14 @@ class Auditor:
                 return "prior without positions"
             prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
         reports = {r.drone: r for r in rec.reports}
-        again = memo_compute(self.drone.record_memo, rec.step, rec.term, reports, prior, c)
+        try:
+            again = memo_compute(self.drone.record_memo, rec.step, rec.term, reports, prior, c)
+        except Exception as exc:  # noqa: BLE001 - whatever the leader signed made it raise
+            # a leader signs the prior it likes: one of 1e300 or inf made the solver raise,
+            # and the exception left the validator through the Raft node (no refusal, no
+            # election: the voter followed the liar for good). A record the verification
+            # cannot re-run does not follow from its evidence.
+            return f"re-run failed: {type(exc).__name__}: {str(exc)[:120]}"
         return rerun_differs(again, rec, self.tolerance)
 
     def _prior(self, rec: StepRecord) -> str | None:

@@ -639,6 +639,16 @@ class RaftNode:
             last_index, m = last, held
             last, refused = self._take_append(m)
 
+    def ignores(self, m: Message) -> bool:
+        """Whether `step` would drop the append, heartbeat or snapshot ``m`` without reading
+        its entries: from the leadership this node deposed (`depose`), or of a term below its
+        own (answered with the newer term, nothing appended). A pure query: a host that does
+        work per entry before stepping (an audit) can skip that work for these."""
+        if m.type not in (MsgType.APP, MsgType.HEARTBEAT, MsgType.SNAP):
+            return False
+        deposed = m.frm == self._distrusted and m.term <= self._distrusted_term
+        return deposed or m.term < self.term
+
     def depose(self, leader: int | None, term: int | None = None) -> None:
         """This node found ``leader`` faulty: its entry was refused (`validate`), or the host
         found it censoring in ``term`` (nothing if this node's term has moved on since, or it

@@ -181,6 +181,8 @@ def test_five_drone_processes_commit_identical_records_and_survive_the_leader_ki
         assert audit["refused_entries"] == audit["refused_applies"] == audit["censorship_findings"] == 0
         found = [e for e in events(swarm.nodes_dir, i) if e["event"].startswith(("audit", "censorship"))]
         assert not found, found[:3]
+        # the restarted drone re-checked its log at apply in its audit thread (not on its loop)
+        assert (stop["counters"].get("audited_at_apply", 0) > 10) == (i == old), (i, stop["counters"])
     g = gather_steps(swarm.nodes_dir, 5, 400, 0.1)
     assert g.all_identical and g.committed > 30
 

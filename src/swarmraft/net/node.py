@@ -60,7 +60,7 @@ from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.drift import realigns
-from swarmraft.protocol.memo import BoundedMemo
+from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.raft import (
     Entry,
     EntryKind,
@@ -347,6 +347,8 @@ class DroneHost:
         self._acked: set[int] = set()  # steps whose report the leader acknowledged
         # committed entries (and a leader's snapshot to restore), waiting for the drone to be free
         self._to_apply: deque[Entry | Snapshot] = deque()
+        self._apply_audit: asyncio.Future | None = None  # the audit a committed record waits for
+        self._apply_tried = -1  # the log index of the last record audited for its apply
         self.snapshots = MISSION_SNAPSHOTS  # as in the simulator: every 1000 entries, keeping 500
         self._applied_index = 0  # the last log index the drone's state holds
         self._snap_index = 0  # the index of the stored snapshot
@@ -492,6 +494,9 @@ class DroneHost:
             await driver  # the write in flight, and what it releases, completes
             if self._verifying is not None:
                 await asyncio.wait([self._verifying])  # its callback applies what waited
+            if self._apply_audit is not None:
+                await asyncio.wait([self._apply_audit])
+            self._apply_queued()  # what is left, checked here (the node has stopped)
         finally:
             for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1):
                 loop.remove_signal_handler(sig)
@@ -613,9 +618,45 @@ class DroneHost:
                 return
 
     def _apply_queued(self) -> None:
-        """Apply the committed entries waiting in the queue, unless the drone is verifying."""
-        while self._to_apply and self._verifying is None:
+        """Apply the committed entries waiting in the queue, unless the drone is verifying.
+        A record this drone has not audited yet (a learner's, or a voter's log replayed after
+        a restart: up to a thousand records, tens of ms each) waits while the audit thread
+        computes its checks, then is applied from them: before, those re-runs ran here, on
+        the loop, and a restarted voter answered nothing for seconds. Once the node stops,
+        what is left is applied here, checks and all."""
+        while self._to_apply and self._verifying is None and self._apply_audit is None:
+            item = self._to_apply[0]
+            if not self._stopping and self._unaudited(item):
+                # once per record: one whose checks the thread could not compute (undecodable)
+                # is checked at apply, here
+                self._apply_tried = item.index
+                self.counters["audited_at_apply"] += 1
+                self._apply_audit = self._loop.run_in_executor(
+                    self._audit_pool, self._evidence_ahead, [item.data]
+                )
+                self._apply_audit.add_done_callback(self._audited_for_apply)
+                return
             self._apply(self._to_apply.popleft())
+
+    def _unaudited(self, item: Entry | Snapshot) -> bool:
+        """A record whose checks are neither passed nor computed yet (`_apply_queued`)."""
+        audit = self.drone.audit
+        return (
+            audit is not None
+            and isinstance(item, Entry)
+            and item.index != self._apply_tried
+            and item.kind == EntryKind.NORMAL
+            and not audit.passed(item.data)
+            and record_digest(item.data) not in audit.cache
+        )
+
+    def _audited_for_apply(self, fut: asyncio.Future) -> None:
+        self._apply_audit = None
+        if not fut.cancelled() and (exc := fut.exception()) is not None:
+            self.counters["preaudit_failed"] += 1  # the apply checks it again (and refuses)
+            _logger.error("drone %d: an audit failed", self.id, exc_info=exc)
+        if not self._stopping:
+            self._apply_queued()
 
     def _note_role(self) -> None:
         now = (str(self.node.role), self.node.term)

@@ -575,3 +575,26 @@ def test_launch_stopped_before_step_0_writes_no_results(tmp_path):
     assert launch.returncode == 143, stdout + stderr
     assert "interrupted (SIGTERM) before step 0: nothing flown, nothing written" in stderr
     assert not (out / "summary.json").exists() and not (out / "steps.csv").exists()
+
+
+def test_a_node_refuses_a_swarm_file_written_for_other_code(tmp_path):
+    """Every drone must run the same code: a voter re-runs its leader's verification, and
+    another version's honest records would be refused as lies, the swarm electing leader
+    after leader with every refusal blaming one. `launch` writes the code it runs into the
+    swarm file; a node with other code refuses to start, in one line; without the line,
+    nothing is checked (hand-written files)."""
+    from swarmraft.net.node import NodeConfigError
+    from swarmraft.provenance import source_sha256
+
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(n=4, duration=4))
+    path, swarm = prepare_swarm(tmp_path / "run", scenario, 4, time.time() + 60)
+    assert swarm.code_sha256 == source_sha256()
+    DroneHost(load_swarm(path), 1)  # this code: accepted
+    text = path.read_text()
+    path.write_text(text.replace(source_sha256(), "0" * 64))
+    with pytest.raises(NodeConfigError, match="names swarmraft code 000000000000, this program is"):
+        DroneHost(load_swarm(path), 1)
+    path.write_text(re.sub(r"(?m)^code_sha256 = .*\n", "", text))
+    assert load_swarm(path).code_sha256 is None
+    DroneHost(load_swarm(path), 1)

@@ -43,6 +43,7 @@ from swarmraft.experiments.metrics import (
 )
 from swarmraft.experiments.tables import read_table, write_columns, write_json, write_rows
 from swarmraft.experiments.trials import TRIAL_COLUMNS, run_chunk
+from swarmraft.provenance import add_package_sources
 
 ProgressFn = Callable[[int], None]
 
@@ -90,9 +91,7 @@ def code_hash(detector: str | None = None, attack: str | None = None) -> str:
     plugin or a script's own), whose changes would otherwise pass unseen."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        h.update(str(path.relative_to(root)).encode())
-        h.update(path.read_bytes())
+    add_package_sources(h)
     plugin = attack_plugin(attack) if attack else None
     functions = [get_detector(detector).run if detector else None, plugin.make if plugin else None]
     for fn in functions:

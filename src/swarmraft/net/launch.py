@@ -21,6 +21,7 @@ from typing import Any
 
 from swarmraft.net.keys import write_keys
 from swarmraft.net.swarmfile import SwarmFile, drone_file, swarm_file_text
+from swarmraft.provenance import source_sha256
 
 NODES_DIR = "nodes"
 
@@ -71,6 +72,7 @@ def prepare_swarm(
             "start_unix_s": start_unix_s,
             "public_keys": "keys/swarm-keys.toml",
             "out": NODES_DIR,
+            "code_sha256": source_sha256(),
             "drones": {
                 i: {
                     "bind": f"127.0.0.1:{port}",

@@ -61,6 +61,7 @@ from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.drift import realigns
 from swarmraft.protocol.memo import BoundedMemo, record_digest
+from swarmraft.provenance import source_sha256
 from swarmraft.raft import (
     Entry,
     EntryKind,
@@ -266,6 +267,14 @@ class DroneHost:
     def __init__(self, swarm: SwarmFile, drone_id: int) -> None:
         if drone_id not in swarm.drones:
             raise NodeConfigError(f"--id: no drone {drone_id} in the swarm file (ids 1..{len(swarm.drones)})")
+        if swarm.code_sha256 is not None and swarm.code_sha256 != source_sha256():
+            raise NodeConfigError(
+                f"the swarm file names swarmraft code {swarm.code_sha256[:12]}, this program is "
+                f"{source_sha256()[:12]}: every drone must run the same code (a voter re-runs "
+                "its leader's verification, and another version's records would be refused as "
+                "lies); install that code here, or write the swarm file again with this one "
+                "(or remove its code_sha256 line to fly mixed code unchecked)"
+            )
         self.swarm, self.id, self.index = swarm, drone_id, drone_id - 1
         self.entry = swarm.drones[drone_id]
         self.sc = load_node_scenario(swarm)

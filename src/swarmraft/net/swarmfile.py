@@ -144,6 +144,12 @@ class SwarmFile(_Strict):
     out: Path = Field(Path("."), description="folder for each drone's SQLite, step and event files")
     drones: dict[int, DroneEntry] = Field(min_length=1)
     origin: GeodeticOrigin | None = Field(None, description="geodetic origin of the local ENU frame")
+    code_sha256: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{64}$",
+        description="SHA-256 of the swarmraft source files every drone must run (`swarmraft launch` "
+        "writes the one it runs; a node with other code refuses to start); unset: not checked",
+    )
 
     @field_validator("version")
     @classmethod
@@ -261,6 +267,8 @@ def swarm_file_text(swarm: SwarmFile) -> str:
         f"public_keys = {q(swarm.public_keys)}",
         f"out = {q(swarm.out)}",
     ]
+    if swarm.code_sha256 is not None:
+        lines.append(f"code_sha256 = {q(swarm.code_sha256)}  # the swarmraft code every drone must run")
     if swarm.origin is not None:
         o = swarm.origin
         lines += [

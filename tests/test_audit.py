@@ -503,17 +503,21 @@ def test_the_record_memo_returns_what_compute_record_would_for_every_change_of_i
 @pytest.mark.parametrize(
     ("change", "why"),
     [
-        ({"position": np.array([np.nan, 0.0, 0.0])}, "position is not 3 finite numbers"),
+        ({"position": np.array([np.nan, 0.0, 0.0])}, "position is not 3 numbers within 1e+07 m"),
+        ({"position": np.array([1.4e154, 0.0, 0.0])}, "position is not 3 numbers within 1e+07 m"),
         ({"ranges": np.full(3, 10.0)}, "3 ranges in a swarm of 9"),
-        ({"ranges": np.r_[np.inf, np.full(N - 1, 10.0)]}, "a range that is not a finite distance >= 0"),
-        ({"ranges": np.r_[-50.0, np.full(N - 1, 10.0)]}, "a range that is not a finite distance >= 0"),
+        ({"ranges": np.r_[np.inf, np.full(N - 1, 10.0)]}, "a range that is not a distance in [0, 1e+07] m"),
+        ({"ranges": np.r_[-50.0, np.full(N - 1, 10.0)]}, "a range that is not a distance in [0, 1e+07] m"),
+        ({"ranges": np.r_[1e154, np.full(N - 1, 10.0)]}, "a range that is not a distance in [0, 1e+07] m"),
+        ({"ins": np.array([1e300, 0.0, 0.0])}, "an ins value beyond 1e+07 m"),
     ],
 )
 def test_a_malformed_signed_report_is_kept_by_no_one(change, why) -> None:
     """A compromised drone signs what it likes: a nan position, a short range row or an
-    infinite range, signed, raised inside the leader's detector and stopped its step. The
-    leader keeps no such report (the step goes on without that drone), a voter holds none at
-    the fan-out, and a record that carries one is refused."""
+    infinite range, signed, raised inside the leader's detector and stopped its step, as did
+    a finite position of 1.4e154 m (the solver's squares overflowed: a LinAlgError in every
+    statistical detector). The leader keeps no such report (the step goes on without that
+    drone), a voter holds none at the fan-out, and a record that carries one is refused."""
     v, chain, keys = voter_through(12)
     rec = StepRecord.decode(chain[12])
     bad = keys.sign(replace(rec.reports[4], signature=b"", **change))

@@ -180,14 +180,18 @@ def test_joint_does_not_flag_an_honest_drone_whose_inclusion_passes_the_residual
 def _batch_cases():
     rep = np.random.default_rng(0).uniform(0, 100, (2, 6, 3))
     rng = np.linalg.norm(rep[:, :, None] - rep[:, None], axis=3)
-    neg, nan_rep = rng.copy(), rep.copy()
+    neg, nan_rep, far_rep, far = rng.copy(), rep.copy(), rep.copy(), rng.copy()
     neg[0, 0, 1] = -50.0
     nan_rep[0, 1, 1] = np.nan
+    far_rep[1, 2, 0] = 1.4e154  # finite, but the solvers' squares overflow (a LinAlgError)
+    far[1, 2, 3] = 1e154
     return [
         (SnapshotBatch(rep, rng, (1.5, 3.0), -0.1), "range_sigma: expected a finite number >= 0"),
         (SnapshotBatch(rep, rng, (1.5, 3.0), float("nan")), "range_sigma: expected a finite number >= 0"),
-        (SnapshotBatch(rep, neg, (1.5, 3.0), 0.1), "ranges: measured distances must be finite and >= 0"),
-        (SnapshotBatch(nan_rep, rng, (1.5, 3.0), 0.1), "reported: positions must be finite"),
+        (SnapshotBatch(rep, neg, (1.5, 3.0), 0.1), "ranges: measured distances must be in [0, 1e+07] m"),
+        (SnapshotBatch(rep, far, (1.5, 3.0), 0.1), "ranges: measured distances must be in [0, 1e+07] m"),
+        (SnapshotBatch(nan_rep, rng, (1.5, 3.0), 0.1), "reported: positions must be finite, within 1e+07 m"),
+        (SnapshotBatch(far_rep, rng, (1.5, 3.0), 0.1), "reported: positions must be finite, within 1e+07 m"),
         (SnapshotBatch(rep[0], rng, (1.5, 3.0), 0.1), "reported: expected shape (T, n, 3)"),
         (SnapshotBatch(rep, rng[:, :, :5], (1.5, 3.0), 0.1), "ranges: expected shape (2, 6, 6)"),
         (SnapshotBatch(rep, rng, (-1.5, 3.0), 0.1), "gnss_sigma: expected (horizontal, vertical)"),

@@ -37,34 +37,45 @@ def _finite_nonnegative(v: object) -> bool:
     return bool(np.isfinite(f) and f >= 0)
 
 
+#: The largest coordinate or distance a snapshot or a drone's report may hold, m (10,000 km:
+#: nothing of a swarm's local frame). Finite is not enough: a signed report at 1e154 m made
+#: every detector's solver overflow and raise, and stopped the leader's steps.
+MAX_M = 1e7
+
+
 def distances_ok(d: np.ndarray) -> bool:
-    """Whether every measured distance in ``d`` is a finite number >= 0 (nan: not measured):
-    the rule for ranges in a snapshot, a batch and a drone's report. Two reductions, so a
-    report's 17 ranges cost microseconds and a batch's 300,000 little more."""
+    """Whether every measured distance in ``d`` is a number in [0, MAX_M] (nan: not
+    measured): the rule for ranges in a snapshot, a batch and a drone's report. Two
+    reductions, so a report's 17 ranges cost microseconds and a batch's 300,000 little more."""
     d = np.asarray(d, float)
     return bool(
-        np.fmin.reduce(d, axis=None, initial=0.0) >= 0 and np.fmax.reduce(d, axis=None, initial=0.0) < np.inf
+        np.fmin.reduce(d, axis=None, initial=0.0) >= 0 and np.fmax.reduce(d, axis=None, initial=0.0) <= MAX_M
     )
+
+
+def coordinates_ok(x: np.ndarray) -> bool:
+    """Whether every value of ``x`` is a number within MAX_M of 0 (nan fails)."""
+    return bool(np.all(np.abs(np.asarray(x, float)) <= MAX_M))
 
 
 def _checked_fields(snap: Snapshot | SnapshotBatch, batch: bool) -> dict[str, Any]:
     """The noise and array fields of a snapshot (``batch``: a batch, each array with a leading
-    T axis) as floats and pairs, checked: reported (n, 3) finite, n >= 1; ranges (n, n)
-    whose off-diagonal entries are nan or a finite distance >= 0; sigmas finite and >= 0;
-    prior (n, 3) finite or nan rows; prior_sigma finite and > 0. A one-line ValueError for
-    the first that fails."""
+    T axis) as floats and pairs, checked: reported (n, 3) within MAX_M of the origin, n >= 1;
+    ranges (n, n) whose off-diagonal entries are nan or a distance in [0, MAX_M]; sigmas
+    finite and >= 0; prior (n, 3) within MAX_M or nan rows; prior_sigma finite and > 0. A
+    one-line ValueError for the first that fails."""
     lead = "T, " if batch else ""
     rep = _as_float_array("reported", snap.reported, f"({lead}n, 3)")
     if rep.ndim != 2 + batch or rep.shape[-1] != 3 or rep.shape[-2] < 1:
         raise ValueError(f"reported: expected shape ({lead}n, 3) with n >= 1, got {rep.shape}")
-    if not np.isfinite(rep).all():
-        raise ValueError("reported: positions must be finite")
+    if not coordinates_ok(rep):
+        raise ValueError(f"reported: positions must be finite, within {MAX_M:g} m of the origin")
     n = rep.shape[-2]
     rng = _as_float_array("ranges", snap.ranges, f"({lead}n, n)")
     if rng.shape != (*rep.shape[:-1], n):
         raise ValueError(f"ranges: expected shape {(*rep.shape[:-1], n)} to match reported, got {rng.shape}")
     if not distances_ok(rng[..., ~np.eye(n, dtype=bool)]):
-        raise ValueError("ranges: measured distances must be finite and >= 0 (nan = unmeasured)")
+        raise ValueError(f"ranges: measured distances must be in [0, {MAX_M:g}] m (nan = unmeasured)")
     out: dict[str, Any] = {"reported": rep, "ranges": rng}
     for name in ("gnss_sigma", "gnss_common"):
         value = getattr(snap, name)
@@ -75,8 +86,8 @@ def _checked_fields(snap: Snapshot | SnapshotBatch, batch: bool) -> dict[str, An
     out["prior"] = None
     if snap.prior is not None:
         pr = _as_float_array("prior", snap.prior, f"({lead}n, 3)")
-        if pr.shape != rep.shape or np.isinf(pr).any():
-            raise ValueError(f"prior: expected shape {rep.shape} of finite values or nan rows")
+        if pr.shape != rep.shape or np.any(np.abs(pr) > MAX_M):
+            raise ValueError(f"prior: expected shape {rep.shape} of values within {MAX_M:g} m or nan rows")
         out["prior"] = pr
     if snap.prior_sigma is not None and not (_finite_nonnegative(snap.prior_sigma) and snap.prior_sigma > 0):
         raise ValueError("prior_sigma: expected a finite number > 0, m")

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import struct
 from dataclasses import dataclass
 
 import numpy as np
 
-from swarmraft.estimation.snapshot import distances_ok
+from swarmraft.estimation.snapshot import MAX_M, distances_ok
 
 _SOURCES = ("gnss", "ins")
 #: verdicts a record's successor must not build on (docs/detectors.md, Statuses)
@@ -50,24 +49,25 @@ class Report:
 
     def malformed(self, n: int) -> str | None:
         """Why this report cannot be a drone's honest reading in a swarm of n (None: it can):
-        a position not 3 finite numbers, ranges not n values each nan or a finite distance
-        >= 0, an innovation, drift window or INS track with an infinite value. A signature
-        does not make it so: a compromised drone signs what it likes, and one nan position
-        or a short range row raised inside the leader's detector (a LinAlgError, a broadcast
-        error) and stopped its step."""
+        a position not 3 numbers within MAX_M (10,000 km) of the origin, ranges not n values
+        each nan or a distance in [0, MAX_M], an innovation, drift window or INS track with a
+        value beyond MAX_M (nan allowed). A signature does not make it so: a compromised
+        drone signs what it likes, and one nan position or a short range row raised inside
+        the leader's detector (a LinAlgError, a broadcast error) and stopped its step, as
+        did a finite position of 1e154 m (the solver's squares overflowed)."""
         pos = np.asarray(self.position, float)
-        if pos.shape != (3,) or not all(map(math.isfinite, pos.tolist())):
-            return "position is not 3 finite numbers"
+        if pos.shape != (3,) or not all(abs(v) <= MAX_M for v in pos.tolist()):
+            return f"position is not 3 numbers within {MAX_M:g} m"
         rng = np.asarray(self.ranges, float)
         if rng.shape != (n,):
             return f"{rng.size} ranges in a swarm of {n}"
         if not distances_ok(rng):
-            return "a range that is not a finite distance >= 0"
+            return f"a range that is not a distance in [0, {MAX_M:g}] m"
         # (small arrays: Python's floats, a microsecond, where numpy's calls cost several each)
         for name in ("innovation", "drift", "ins"):
             value = getattr(self, name)
-            if value is not None and any(map(math.isinf, np.ravel(value).tolist())):
-                return f"an infinite {name}"
+            if value is not None and any(abs(v) > MAX_M for v in np.ravel(value).tolist()):
+                return f"an {name} value beyond {MAX_M:g} m"
         return None
 
     def body(self) -> bytes:

@@ -13,7 +13,7 @@ import pytest
 from pydantic import ValidationError
 
 from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
-from swarmraft.protocol.audit import POSITION_TOL_M
+from swarmraft.protocol.audit import FUTURE_STEPS, POSITION_TOL_M
 from swarmraft.protocol.drone import Prior, compute_record
 from swarmraft.raft import Entry, EntryKind, MemoryStorage, Message, MsgType, RaftConfig, RaftNode
 from swarmraft.sim.mission import run_mission
@@ -59,10 +59,12 @@ def voter_through(k: int, own_keys: bool = False) -> tuple[SwarmDrone, list[byte
     a Keyring of its own, so no signature check made by another drone is remembered)."""
     w, keys, chain = honest_chain()
     v = SwarmDrone(1, w.protocol, Keyring(keys.private, keys.public) if own_keys else keys, audit=True)
-    for data in chain[:k]:
+    for step, data in enumerate(chain[:k]):
+        v.audit.at_step(step)
         rec, reason = v.audit.check(data, 1)
         assert reason is None, reason
         v.apply(data)
+    v.audit.at_step(k)  # its clock at step k, whose record comes next
     return v, chain, keys
 
 
@@ -570,3 +572,39 @@ def test_a_node_says_which_appends_it_would_drop_unread() -> None:
     before = (node.term, node.lead, node.status.last_index)
     node.ignores(from_liar)
     assert (node.term, node.lead, node.status.last_index) == before  # a query only
+
+
+def test_a_record_ahead_of_the_voters_clock_is_refused() -> None:
+    """A liar signs its own report for a step far ahead and a record of it alone (status
+    `degenerate`, the re-run agrees): accepted, every drone then ignored each later record
+    and report for good (its last step the far one). A record up to FUTURE_STEPS ahead of the
+    voter's clock passes (clocks differ a little); one further is refused."""
+    w, keys, chain = honest_chain()
+    own = StepRecord.decode(chain[12]).reports[0]
+    liar = SwarmDrone(0, w.protocol, keys)
+
+    def lone(step: int) -> bytes:
+        report = liar.make_report(step, own.position, "gnss", own.ranges, own.innovation)
+        return resealed(replace(compute_record(step, 1, {0: report}, None, w.protocol), leader=0), keys)
+
+    v, _, _ = voter_through(12)  # clock at step 12
+    got, reason = v.audit.check(lone(2**31 - 1), 1)
+    assert got is None and reason == "step 2147483647 is ahead of this drone's clock (step 12)"
+    got, reason = v.audit.check(lone(12 + FUTURE_STEPS + 1), 1)
+    assert got is None and reason.endswith("ahead of this drone's clock (step 12)")
+    got, reason = v.audit.check(lone(12 + FUTURE_STEPS), 1)
+    assert reason is None and got.step == 15
+    v.audit.at_step(2**31 - 1)  # later, its clock there: the record passes
+    assert v.audit.check(lone(2**31 - 1), 1)[1] is None
+
+
+def test_a_mission_keeps_every_drones_audit_clock_at_its_step() -> None:
+    """The simulator tells each drone's audit which step its clock is at (`Auditor.at_step`),
+    as each step begins, the crashed and restarted ones too: without it nothing is ahead."""
+    from swarmraft.sim.mission import Mission
+
+    sc = lying("move", 1, duration=3.0).model_dump()
+    sc = Scenario.model_validate({**sc, "fault": [{"kind": "crash-leader", "at_s": 1.5}]})
+    m = Mission(sc)
+    log = m.run()
+    assert {d.audit.clock for d in m.drones} == {len(log.t) - 1}

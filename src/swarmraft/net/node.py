@@ -633,6 +633,7 @@ class DroneHost:
         computes its checks, then is applied from them: before, those re-runs ran here, on
         the loop, and a restarted voter answered nothing for seconds. Once the node stops,
         what is left is applied here, checks and all."""
+        self._audit_clock()  # a learner audits at apply
         while self._to_apply and self._verifying is None and self._apply_audit is None:
             item = self._to_apply[0]
             if not self._stopping and self._unaudited(item):
@@ -707,6 +708,8 @@ class DroneHost:
         self._heard[got.sender] = time.monotonic()
         if isinstance(got.message, Message):
             m = got.message
+            if m.type == MsgType.APP:
+                self._audit_clock()
             if m.type == MsgType.APP and (self._held_apps or self._audits(m)):
                 if len(self._held_apps) >= HELD_APPS:
                     # audits slower than the leader sends: dropped as if lost (Raft sends
@@ -1052,6 +1055,16 @@ class DroneHost:
         return data
 
     # -- the audit (docs/audit.md) ----------------------------------------------------------
+    def _audit_clock(self) -> None:
+        """The audit's clock (`Auditor.at_step`) from the wall clock, which every drone of the
+        swarm shares: a record for a step more than a few ahead of it is refused. From the
+        wall clock, not the step timers: a loaded machine's timers fire late, and an honest
+        record would then look ahead."""
+        audit = self.drone.audit
+        k = int((time.time() - self.swarm.start_unix_s) // self.sc.dt_s)
+        if audit is not None and k >= 0:
+            audit.at_step(k)
+
     def _audits(self, m: Message) -> bool:
         """Whether stepping ``m`` would re-run the audit (an append with a record this drone
         has not checked yet)."""

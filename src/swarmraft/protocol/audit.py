@@ -61,6 +61,11 @@ POSITION_TOL_M = 1e-3
 CENSOR = (10, 20)
 #: steps of reports, records and omissions kept
 KEEP_STEPS = 64
+#: steps a record may be ahead of the auditing drone's own clock (`Auditor.at_step`): the
+#: clock difference allowed between a leader and its voters (0.3 s at 10 Hz). A record for a
+#: step far ahead, carrying only the liar's own signed report for that step, passed every
+#: other check, and every drone then ignored each later record and report for good.
+FUTURE_STEPS = 3
 
 
 def _close(a: np.ndarray | None, b: np.ndarray | None, tol: float) -> bool:
@@ -117,12 +122,19 @@ class Auditor:
         self.seen: dict[int, list[StepRecord]] = {}  # step -> records held for it
         self.refused: list[tuple[int, str]] = []  # (step, reason)
         self.unchecked_priors = 0
+        self.clock: int | None = None  # the step this drone's clock has reached (`at_step`)
         # censorship
         self.timely: dict[int, set[int]] = {}  # step -> drones whose report this drone held
         self.closed: set[int] = set()
         self.omissions: dict[int, list[int]] = {}  # drone -> steps its report was left out
         self.omission_term = -1
         self.suspicion: str | None = None
+
+    def at_step(self, k: int) -> None:
+        """This drone's clock has reached step k (its host calls this as each step begins, and
+        a networked host from the wall clock as messages come): a record more than
+        FUTURE_STEPS ahead of it is refused. Until a host calls it nothing is ahead."""
+        self.clock = k if self.clock is None else max(self.clock, k)
 
     # -- the records this drone holds --------------------------------------------------------
     def passed(self, data: bytes) -> bool:
@@ -178,6 +190,9 @@ class Auditor:
             return self._refuse(-1, f"undecodable: {type(exc).__name__}")
         if term is not None and rec.term != term:
             return self._refuse(rec.step, f"term {rec.term} in an entry of term {term}")
+        if self.clock is not None and rec.step > self.clock + FUTURE_STEPS:
+            ahead = f"step {rec.step} is ahead of this drone's clock (step {self.clock})"
+            return self._refuse(rec.step, ahead)
         reason = self._evidence(data, rec)
         if reason is None:
             reason = self._prior(rec)
@@ -295,6 +310,7 @@ class Auditor:
 
     def close_step(self, step: int) -> None:
         """Step ``step``'s deadline passed here: reports arriving later are not timely."""
+        self.at_step(step)
         self.closed.add(step)
         for old in [s for s in self.closed if s < step - KEEP_STEPS]:
             self.closed.discard(old)

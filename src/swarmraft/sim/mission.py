@@ -295,6 +295,9 @@ class Mission:
             ranges[:, out] = np.nan
             log.member[k] = [i + 1 in self.swarm for i in range(n)]
         self._rows[k] = ranges
+        if self.auditing:
+            for d in self.drones:
+                d.audit.at_step(k)  # every drone's clock, alive or not (a restart keeps it)
         for i in range(n):
             node = i + 1
             alive = self.cluster.alive(node)

@@ -194,7 +194,7 @@ def honest(name: str, seed: int) -> dict:
     data = tomllib.loads(shipped_scenarios()[name].read_text())
     data["seed"] = seed
     log = run_mission(Scenario(**data))
-    counts = {k: log.audit[k] for k in ("refused_entries", "censorship_findings", "unchecked_priors")}
+    counts = {k: log.audit[k] for k in ("refused_entries", "censorship_findings")}
     return {"scenario": name, "seed": seed, **counts}
 
 

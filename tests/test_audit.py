@@ -80,7 +80,6 @@ def test_honest_records_pass_and_round_trip() -> None:
     assert rec.encode() == chain[12]  # deterministic encoding
     assert rec.prior_step == 11 and len(rec.reports) == N and rec.faulty[2]
     assert v.audit.check(chain[12], 1)[1] is None
-    assert v.audit.unchecked_priors == 0
 
 
 @pytest.mark.parametrize(
@@ -608,3 +607,35 @@ def test_a_mission_keeps_every_drones_audit_clock_at_its_step() -> None:
     m = Mission(sc)
     log = m.run()
     assert {d.audit.clock for d in m.drones} == {len(log.t) - 1}
+
+
+def test_a_prior_the_voter_does_not_hold_is_refused() -> None:
+    """A liar skips step 12 and proposes step 13 with a prior "for step 12" it made up (a
+    spoofed drone moved 200 m, an honest one latched): no voter holds a record for step 12,
+    and such a prior was accepted as unchecked (counted only): the re-run from it agreed, and
+    drones were moved and an honest one flagged. Raft's log matching puts every honest prior
+    in the voter's log (its entry comes before the record's), held as it was validated, or
+    re-read from storage after a restart (`Auditor.remember`); so a prior not held is refused."""
+    w, keys, chain = honest_chain()
+    honest13 = StepRecord.decode(chain[13])
+    reports = {r.drone: r for r in honest13.reports}
+    base = StepRecord.decode(chain[11])
+    fake_pos, fake_flags = base.positions.copy(), base.faulty.copy()
+    fake_pos[2] += [200.0, 0.0, 0.0]
+    fake_flags[5] = True
+    v, _, _ = voter_through(12)  # audited and applied steps 0-11; step 12 never proposed
+    v.audit.at_step(13)
+    honest_prior, made_up = Prior(11, base.positions, base.faulty), Prior(12, fake_pos, fake_flags)
+    for prior, refused in [(honest_prior, False), (made_up, True)]:
+        data = resealed(replace(compute_record(13, 1, reports, prior, v.config), leader=0), keys)
+        got, reason = v.audit.check(data, 1)
+        if refused:
+            assert got is None and reason == "prior step 12: this drone holds no record for it"
+        else:
+            assert reason is None
+    # a restarted voter re-reads its own log: its records are priors again
+    fresh = SwarmDrone(1, w.protocol, keys, audit=True)
+    fresh.audit.at_step(13)
+    for data in chain[:13]:
+        fresh.audit.remember(data)
+    assert fresh.audit.check(chain[13], 1)[1] is None

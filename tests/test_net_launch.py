@@ -183,3 +183,39 @@ def test_launch_says_before_it_starts_when_the_replayed_log_ends_before_the_scen
     assert short_log(read_sensor_log(log, 4), Scenario(drones=4, duration_s=5), log) is None
     # its last lines serve 1 s more (max_age_s): a log 0.2 s short skips nothing
     assert short_log(read_sensor_log(log, 4), Scenario(drones=4, duration_s=5.2), log) is None
+
+
+def test_launch_says_when_a_drone_process_exits_on_its_own(tmp_path):
+    """A drone process that exits without launch stopping it (a crash, out of memory) was
+    reported alive to the end, its skipped steps unexplained. Now launch says so once, counts
+    the drone down from then (its steps are not `alive`) and lists it among the events and in
+    ``launch.exited_on_their_own``; a drone launch killed itself, and exits at the scenario's
+    end, are not such."""
+    import time
+
+    from swarmraft.net.launch import NodeProcess
+    from swarmraft.net.localswarm import LocalSwarm
+    from swarmraft.sim.scenario import Scenario
+
+    said = []
+    sc = Scenario(name="x", drones=4, duration_s=10)
+    run = LocalSwarm(sc, tmp_path / "s.toml", tmp_path, say=said.append)
+    run.start_unix_s = time.time() - 2.0  # 2 s into a 10 s scenario
+    run.procs = {}
+    for d, code in [(1, "import sys; sys.exit(3)"), (2, "import time; time.sleep(60)")]:
+        p = NodeProcess(d, tmp_path / "swarm.toml", tmp_path / f"drone-{d}.log")
+        p.proc = subprocess.Popen([sys.executable, "-c", code])
+        run.procs[d] = p
+    run.procs[1].proc.wait()
+    run._kill(2, "killed")  # by launch: not on its own
+    run._watch()
+    run._watch()  # said once
+    assert [(d, s) for d, _, s in run.exited] == [(1, 3)]
+    assert len(said) == 1 and said[0].startswith("warning: ")
+    assert "drone 1 exited on its own (exit status 3)" in said[0]
+    assert [what for _, what in run.events] == ["drone 1 exited on its own (exit status 3)"]
+    assert len(run.kills[1]) == 1 and len(run.kills[2]) == 1
+    run.start_unix_s = time.time() - 11.0  # the scenario is over: exits are the drones' own end
+    run._down.clear()
+    run._watch()
+    assert len(run.exited) == 1

@@ -284,6 +284,7 @@ def launch(
             "steps_with_records_differing": [r["step"] for r in g.rows if not r["identical"]],
             "interrupted": run.interrupted,
             "sigkilled_at_end": run.unstoppable,
+            "exited_on_their_own": [{"drone": d, "s": t, "exit_status": rc} for d, t, rc in run.exited],
         }
     }
     result = write_results(log, out, extra)

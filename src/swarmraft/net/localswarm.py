@@ -74,6 +74,7 @@ class LocalSwarm:
     events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
     unstoppable: list[int] = field(default_factory=list)  # drones SIGKILLed at the end
+    exited: list[tuple[int, float, int]] = field(default_factory=list)  # (drone, s, status) on its own
     interrupted: bool = False
     stopped_s: float = 0.0  # s after step 0 at the interrupt
     signal_name: str = "SIGINT"  # what interrupted it (`run_stoppable`)
@@ -86,6 +87,7 @@ class LocalSwarm:
         self.nodes_dir = self.out / NODES_DIR
         self.relay: RelayThread | None = None
         self.relay_counters: dict[str, int] = {}  # the relay's, when it stops
+        self._down: set[int] = set()  # drones launch stopped, or saw exit: not running by design
         if self.relay_mode == "on" or (self.relay_mode == "auto" and needs_relay(self.sc)):
             self.link = LinkModel.of(self.sc.network)
         else:
@@ -179,6 +181,7 @@ class LocalSwarm:
         if not self.procs[drone].alive:
             return f"crash: drone {drone} is not running, nothing killed"
         self.procs[drone].kill()
+        self._down.add(drone)
         self.kills.setdefault(drone, []).append(time.time())
         return what
 
@@ -211,6 +214,7 @@ class LocalSwarm:
         if self.procs[drone].alive:
             return f"restart: drone {drone} is running, nothing started"
         self.procs[drone].start()
+        self._down.discard(drone)
         return f"drone {drone} restarted on its SQLite file"
 
     def _names(self, who: list[int]) -> str:
@@ -240,6 +244,31 @@ class LocalSwarm:
         return f"loss set to {f.value:.0%} (fault relay)"
 
     # -- running ------------------------------------------------------------------------------
+    def _watch(self) -> None:
+        """A drone process that exited without launch stopping it (a crash, a bug, out of
+        memory) is said, counted as down from now (``kills``: its steps are not `alive`) and
+        put among the events (the steps it then misses are explained), once. Before, launch
+        reported such a drone alive to the end and its skipped steps unexplained."""
+        now = time.time()
+        if now >= self.start_unix_s + self.sc.steps * self.sc.dt_s:
+            return  # the scenario is over: the drones stop by themselves
+        for d, p in self.procs.items():
+            if p.proc is None or p.alive or d in self._down:
+                continue
+            self._down.add(d)
+            at = round(now - self.start_unix_s, 2)
+            status = p.proc.returncode
+            self.exited.append((d, at, status))
+            self.kills.setdefault(d, []).append(now)
+            self.events.append((at, f"drone {d} exited on its own (exit status {status})"))
+            self.say(f"warning: {at:g} s: drone {d} exited on its own (exit status {status}); log: {p.log}")
+
+    def _sleep_until(self, t: float) -> None:
+        """Sleep until unix time ``t``, watching the drones (`_watch`)."""
+        while time.time() < t:
+            self._watch()
+            time.sleep(0.01)
+
     def run(self) -> None:
         """Start every process, apply the faults at their times, wait for the end (or Ctrl-C:
         ``interrupted``), then stop every process and the relay."""
@@ -248,8 +277,7 @@ class LocalSwarm:
             for p in self.procs.values():
                 p.start()
             for a in self.actions():
-                while time.time() < self.start_unix_s + a.at_s:
-                    time.sleep(0.01)
+                self._sleep_until(self.start_unix_s + a.at_s)
                 # the time the action began: reading who leads, say, takes a tenth of a
                 # second, and a fault's skipped steps are counted from its time
                 began = time.time()
@@ -260,6 +288,7 @@ class LocalSwarm:
                 self.say(f"{a.at_s:g} s: {what}")
             end = self.start_unix_s + sc.steps * sc.dt_s + END_WAIT_S
             while any(p.alive for p in self.procs.values()) and time.time() < end:
+                self._watch()
                 time.sleep(0.1)
         except KeyboardInterrupt:
             self.interrupted = True

@@ -451,6 +451,13 @@ class DroneHost:
                 random.Random(int.from_bytes(os.urandom(8))),
                 validate=self._validate if self.drone.audit is not None else None,
             )
+            if self.drone.audit is not None:
+                # the records this drone held as priors before a restart: its own log, every
+                # entry of which it validated before persisting (a prior not held is refused)
+                st = self.storage
+                for e in st.entries(st.first_index(), st.last_index() + 1):
+                    if e.kind == EntryKind.NORMAL:
+                        self.drone.audit.remember(e.data)
             # Above every sequence number an earlier run sent: microseconds of the wall clock
             # (a run sends a few hundred datagrams a second, far fewer than a million).
             self.signer = Signer(self.id, self.seed, first_seq=time.time_ns() // 1000)
@@ -776,7 +783,6 @@ class DroneHost:
             "refused_entries": self.counters["audit_refused"],
             "refused_applies": self.drone.refused_applies,
             "censorship_findings": self.counters["censorship_findings"],
-            "unchecked_priors": audit.unchecked_priors,
             "falsified_proposed": self.counters["falsified_proposed"],
             "lying": self._lying,
         }

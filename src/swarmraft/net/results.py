@@ -130,8 +130,7 @@ def audit_summary(nodes_dir: Path, n: int, start_unix_s: float) -> dict:
     """The audit's counts over a networked run's drones, as the simulator's
     (`sim.mission.Mission.audit_summary`), from their event and step files: the liar is the
     drone told to lie (its ``compromised`` event); refused entries, refused applies and
-    censorship findings are the other drones'; ``unchecked_priors`` sums their stop events
-    (a SIGKILLed drone has none); ``falsified_applied`` counts the step-file rows of drones
+    censorship findings are the other drones'; ``falsified_applied`` counts the step-file rows of drones
     other than the liar that hold a record the liar falsified (the invariant: 0);
     ``compromised_s``, when the liar was told to lie, and ``other_leader_s``, when a drone
     other than the liar first led after that (the liar replaced).
@@ -147,7 +146,6 @@ def audit_summary(nodes_dir: Path, n: int, start_unix_s: float) -> dict:
         return sorted(round(e["t"] - start_unix_s, 3) for d in honest for e in evs[d] if e["event"] == kind)
 
     refusals, findings = times("audit_refused"), times("censorship")
-    stops = [e.get("audit") or {} for d in honest for e in evs[d] if e["event"] == "stop"]
     applied = sum(
         r.get("record") in falsified
         for d in honest
@@ -162,7 +160,6 @@ def audit_summary(nodes_dir: Path, n: int, start_unix_s: float) -> dict:
         "refused_entries": len(refusals),
         "refused_applies": len(times("audit_refused_apply")),
         "censorship_findings": len(findings),
-        "unchecked_priors": sum(s.get("unchecked_priors", 0) for s in stops),
         "falsified_proposed": len(lies),
         "falsified_applied": applied,
         "liar": liar,

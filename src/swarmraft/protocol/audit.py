@@ -9,10 +9,11 @@ A record passes when
 - the detector and its parameters are the swarm's (this drone's configuration), the report
   digest and the missing flags match the carried reports, and the record's term is its log
   entry's;
-- the prior is a record this drone holds for that step (audited, proposed or applied), settled,
-  at most PRIOR_STEPS before (a prior this drone never saw is accepted and counted in
-  ``unchecked_priors``: Raft's log matching puts it in the voter's log, but a restarted drone
-  does not re-read its log);
+- the record's step is at most FUTURE_STEPS ahead of this drone's clock (`at_step`);
+- the prior is a record this drone holds for that step (audited, proposed, applied, or read
+  back from its own log after a restart: `remember`), settled, at most PRIOR_STEPS before.
+  Raft's log matching puts every honest prior in the voter's log (its entry comes before the
+  record's), so a prior this drone does not hold is one the leader made up;
 - re-running the verification (`compute_record`) on the carried reports and prior gives the
   same flags, missing drones and status exactly, and positions and protection levels within
   ``POSITION_TOL_M`` (floating point differs between machines; a record is never trusted to
@@ -121,7 +122,6 @@ class Auditor:
         self._passed: OrderedDict[bytes, None] = OrderedDict()
         self.seen: dict[int, list[StepRecord]] = {}  # step -> records held for it
         self.refused: list[tuple[int, str]] = []  # (step, reason)
-        self.unchecked_priors = 0
         self.clock: int | None = None  # the step this drone's clock has reached (`at_step`)
         # censorship
         self.timely: dict[int, set[int]] = {}  # step -> drones whose report this drone held
@@ -145,6 +145,20 @@ class Auditor:
         self._passed[record_digest(data)] = None
         while len(self._passed) > 4 * KEEP_STEPS:
             self._passed.popitem(last=False)
+        self.seen.setdefault(rec.step, []).append(rec)
+        for old in [s for s in self.seen if s < rec.step - KEEP_STEPS]:
+            del self.seen[old]
+
+    def remember(self, data: bytes) -> None:
+        """A record of this drone's own Raft log, read back after a restart: held as a prior
+        of later records (what `seen` held before the restart). Every entry of a log was
+        validated before it was persisted (or proposed by this drone), so it is not checked
+        again here; one committed is checked at its apply as any record not passed. Bytes
+        that do not decode are left out."""
+        try:
+            rec = self.drone.decode(data)
+        except Exception:  # noqa: BLE001 - any undecodable entry is simply not a prior
+            return
         self.seen.setdefault(rec.step, []).append(rec)
         for old in [s for s in self.seen if s < rec.step - KEEP_STEPS]:
             del self.seen[old]
@@ -263,8 +277,7 @@ class Auditor:
         if applied is not None:
             held.append(applied)
         if not held:
-            self.unchecked_priors += 1
-            return None
+            return f"prior step {rec.prior_step}: this drone holds no record for it"
         for h in held:
             if (
                 h.status not in UNSETTLED

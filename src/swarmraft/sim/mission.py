@@ -502,13 +502,12 @@ class Mission:
 
     def audit_summary(self) -> dict:
         """Counts of the audit: refused entries (at append, by honest drones), refused applies,
-        censorship findings, priors that could not be checked, falsified records proposed."""
+        censorship findings, falsified records proposed."""
         honest = [i for i in range(self.sc.drones) if i + 1 != self.liar]
         return {
             "refused_entries": sum(1 for _, node, _, _ in self.refusals if node != self.liar),
             "refused_applies": sum(self.drones[i].refused_applies for i in honest),
             "censorship_findings": sum(1 for _, node, _ in self.suspicions if node != self.liar),
-            "unchecked_priors": sum(self.drones[i].audit.unchecked_priors for i in honest),
             "falsified_proposed": len(self.falsified),
             "liar": self.liar,
             "first_lie_s": self.first_lie_s,
@@ -554,6 +553,17 @@ class Mission:
             test = self._realign_tests[key] = realign_test(rec, self.pcfg.drift)
         return test
 
+    def _reread_log(self, node: int) -> None:
+        """A restarted drone's audit reads its own log back (`Auditor.remember`): the records
+        it held as priors before the crash (a prior it does not hold is refused)."""
+        audit = self.drones[node - 1].audit
+        if audit is None:
+            return
+        st = self.cluster.storage[node]
+        for e in st.entries(st.first_index(), st.last_index() + 1):
+            if e.kind == EntryKind.NORMAL:
+                audit.remember(e.data)
+
     # -- faults -----------------------------------------------------------------------------
     def _fault(self, f) -> None:  # noqa: ANN001 (a FaultConfig)
         c = self.cluster
@@ -574,6 +584,7 @@ class Mission:
         elif f.kind == "restart":
             if not c.alive(f.drone):
                 c.restart(f.drone)
+                self._reread_log(f.drone)
             self.log.events.append((now, f"drone {f.drone} restarted"))
         elif f.kind == "pause":
             who = [f.drone] if f.drone is not None else list(c.ids)

@@ -639,3 +639,52 @@ def test_a_prior_the_voter_does_not_hold_is_refused() -> None:
     for data in chain[:13]:
         fresh.audit.remember(data)
     assert fresh.audit.check(chain[13], 1)[1] is None
+
+
+def test_a_leaders_snapshot_is_audited_before_it_is_installed() -> None:
+    """A snapshot holds the state the entries it replaces made: a liar that could send any (a
+    record moving drone 5 by 500 m, not even signed, and a last step a million ahead) got
+    round the audit of entries, and the follower installed it. Now a snapshot whose records
+    do not pass `check` in order, or whose last step is not its newest record's or is ahead
+    of the drone's clock, is refused as an entry is: not installed, not acknowledged,
+    counted, and the leader deposed. An honest snapshot (the audited chain) installs."""
+    from swarmraft.protocol.drone import Applied
+    from swarmraft.raft import Snapshot
+
+    w, keys, chain = honest_chain()
+    h = StepRecord.decode(chain[12])
+    moved = h.positions.copy()
+    moved[4, 0] += 500.0
+    lies = {
+        "moved": Applied({12: replace(h, positions=moved)}, [], 12, 0),
+        "far": Applied({10**6: replace(h, step=10**6)}, [], 10**6, 0),
+        "last step": Applied({12: h}, [], 10**6, 0),
+    }
+
+    def follower() -> tuple[SwarmDrone, RaftNode]:
+        v = SwarmDrone(2, w.protocol, keys, audit=True)
+        v.audit.at_step(13)
+        node = RaftNode(
+            RaftConfig(3, (1, 2)),
+            MemoryStorage(),
+            random.Random(0),
+            validate=v.audit.validate,
+            validate_snapshot=v.audit.validate_snapshot,
+        )
+        node.step(Message(MsgType.HEARTBEAT, 2, 3, 1))
+        node.advance(node.ready())
+        return v, node
+
+    for name, state in lies.items():
+        v, node = follower()
+        node.step(Message(MsgType.SNAP, 2, 3, 1, snapshot=Snapshot(50, 1, state.encode())))
+        rd = node.ready()
+        assert rd.snapshot is None and node.status.refused == 1, name
+        assert not [m for m in rd.messages if m.type == MsgType.APP_RESP], name
+        assert node.role == "candidate" and node.term == 2, name  # leader 2 deposed by its successor
+        assert v.audit.refused[-1][1].startswith("snapshot at index 50: "), name
+    honest = Applied({k: StepRecord.decode(d) for k, d in enumerate(chain[:13])}, [], 12, 0)
+    v, node = follower()
+    node.step(Message(MsgType.SNAP, 2, 3, 1, snapshot=Snapshot(50, 1, honest.encode())))
+    rd = node.ready()
+    assert rd.snapshot is not None and node.status.refused == 0

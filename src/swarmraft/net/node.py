@@ -60,6 +60,7 @@ from swarmraft.net.transport import Address, UDPTransport
 from swarmraft.protocol import Keyring, Report, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import KEEP_STEPS
 from swarmraft.protocol.drift import realigns
+from swarmraft.protocol.drone import Applied
 from swarmraft.protocol.memo import BoundedMemo, record_digest
 from swarmraft.provenance import source_sha256
 from swarmraft.raft import (
@@ -450,6 +451,7 @@ class DroneHost:
                 self.storage,
                 random.Random(int.from_bytes(os.urandom(8))),
                 validate=self._validate if self.drone.audit is not None else None,
+                validate_snapshot=self._validate_snapshot if self.drone.audit is not None else None,
             )
             if self.drone.audit is not None:
                 # the records this drone held as priors before a restart: its own log, every
@@ -717,7 +719,7 @@ class DroneHost:
             m = got.message
             if m.type == MsgType.APP:
                 self._audit_clock()
-            if m.type == MsgType.APP and (self._held_apps or self._audits(m)):
+            if m.type in (MsgType.APP, MsgType.SNAP) and (self._held_apps or self._audits(m)):
                 if len(self._held_apps) >= HELD_APPS:
                     # audits slower than the leader sends: dropped as if lost (Raft sends
                     # again what is not acknowledged)
@@ -1075,11 +1077,24 @@ class DroneHost:
         """Whether stepping ``m`` would re-run the audit (an append with a record this drone
         has not checked yet)."""
         audit = self.drone.audit
+        if audit is not None and m.type == MsgType.SNAP:
+            return True  # a leader's snapshot: its records are audited before it is installed
         return (
             audit is not None
             and m.type == MsgType.APP
             and any(e.kind == EntryKind.NORMAL and not audit.passed(e.data) for e in m.entries)
         )
+
+    @staticmethod
+    def _records_of(m: Message) -> list[bytes]:
+        """The records an append or a snapshot carries, as the audit checks them."""
+        if m.type == MsgType.SNAP:
+            try:
+                state = Applied.decode(m.snapshot.data)
+            except Exception:  # noqa: BLE001 - undecodable: the validator says why
+                return []
+            return [rec.encode() for _, rec in sorted(state.records.items())]
+        return [e.data for e in m.entries if e.kind == EntryKind.NORMAL]
 
     def _preaudit(self) -> None:
         """Steps the held appends in order, each once the audit thread has computed its
@@ -1097,7 +1112,7 @@ class DroneHost:
             # an append the node will drop unread (a deposed leader's, a stale term's: the
             # liar's next records, sent while this drone audited its first lie) is not audited
             audited = not self.node.ignores(m) and self._audits(m)
-            data = [e.data for e in m.entries if e.kind == EntryKind.NORMAL] if audited else []
+            data = self._records_of(m) if audited else []
             if not data:
                 self._held_apps.popleft()
                 self._push(lambda m=m: self.node.step(m))
@@ -1148,6 +1163,21 @@ class DroneHost:
         why = audit.take_suspicion()
         if why is not None:
             self._censorship_found(why, term)
+        return ok
+
+    def _validate_snapshot(self, snap: Snapshot) -> bool:
+        """The Raft node's validator of a leader's snapshot (`Auditor.validate_snapshot`; its
+        records' checks computed ahead in the audit thread): a refusal is counted and logged."""
+        audit = self.drone.audit
+        n_refused = len(audit.refused)
+        t0 = time.perf_counter()
+        ok = audit.validate_snapshot(snap)
+        self._time("validate", t0)
+        if not ok:
+            _, reason = audit.refused[n_refused]
+            self.counters["audit_refused"] += 1
+            self._event("audit_refused", step=-1, term=self.node.term, index=snap.index, reason=reason)
+            _logger.warning("drone %d: refused its leader's snapshot: %s", self.id, reason)
         return ok
 
     def _censorship_found(self, why: str, term: int) -> None:

@@ -44,7 +44,7 @@ import numpy as np
 from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, memo_compute
 from swarmraft.protocol.memo import record_digest
 from swarmraft.protocol.records import Report, StepRecord, canonical_params
-from swarmraft.raft import Entry, EntryKind
+from swarmraft.raft import Entry, EntryKind, Snapshot
 
 if TYPE_CHECKING:
     from swarmraft.protocol.drone import SwarmDrone
@@ -194,8 +194,49 @@ class Auditor:
             self._censorship(rec)
         return reason is None
 
-    def check(self, data: bytes, term: int | None = None) -> tuple[StepRecord | None, str | None]:
-        """The record in ``data`` and why it fails (None: it passes; it is then held)."""
+    def validate_snapshot(self, snap: Snapshot) -> bool:
+        """The Raft node's validator of a leader's snapshot, before it is installed: the
+        replicated state it carries (`Applied`) must be one that applying audited records
+        makes. A snapshot holds the records the log entries it replaces made; a liar that
+        could send any (a record moved 500 m, not even signed, a last step a million ahead)
+        got round the audit of entries. Refused (False, the reason in ``refused``) unless
+        it decodes; its last step is its newest record's (-1 with none), ahead of no skipped
+        step, and at most FUTURE_STEPS ahead of this drone's clock; and each record passes
+        `check` in step order (signatures, the re-run, the clock; each record's prior the
+        one before it). The oldest record's prior is checked where this drone holds a record
+        for that step: a drone that needs a snapshot is behind, and may hold none."""
+        reason = self._state_problem(snap.data)
+        if reason is not None:
+            self._refuse(-1, f"snapshot at index {snap.index}: {reason}")
+        return reason is None
+
+    def _state_problem(self, data: bytes) -> str | None:
+        from swarmraft.protocol.drone import Applied  # the drone module imports this one
+
+        try:
+            state = Applied.decode(data)
+        except Exception as exc:  # noqa: BLE001 - anything a liar's bytes make it raise
+            return f"undecodable ({type(exc).__name__})"
+        steps = sorted(state.records)
+        if state.last_step != (steps[-1] if steps else -1):
+            return f"last step {state.last_step} is not its newest record's"
+        if any(k >= state.last_step for k in state.skipped):
+            return "a skipped step at or after its last step"
+        if self.clock is not None and state.last_step > self.clock + FUTURE_STEPS:
+            return f"last step {state.last_step} is ahead of this drone's clock (step {self.clock})"
+        for i, k in enumerate(steps):
+            rec = state.records[k]
+            _, why = self.check(rec.encode(), prior_unknown_ok=i == 0)
+            if why is not None:
+                return f"its record of step {k}: {why}"
+        return None
+
+    def check(
+        self, data: bytes, term: int | None = None, prior_unknown_ok: bool = False
+    ) -> tuple[StepRecord | None, str | None]:
+        """The record in ``data`` and why it fails (None: it passes; it is then held).
+        ``prior_unknown_ok``: a prior this drone holds no record for is not refused (the
+        oldest record of a snapshot)."""
         try:
             rec = self.drone.decode(data)
         except (ValueError, TypeError, IndexError) as exc:
@@ -209,7 +250,7 @@ class Auditor:
             return self._refuse(rec.step, ahead)
         reason = self._evidence(data, rec)
         if reason is None:
-            reason = self._prior(rec)
+            reason = self._prior(rec, prior_unknown_ok)
         if reason is not None:
             return self._refuse(rec.step, reason)
         self._hold(data, rec)
@@ -266,8 +307,9 @@ class Auditor:
             return f"re-run failed: {type(exc).__name__}: {str(exc)[:120]}"
         return rerun_differs(again, rec, self.tolerance)
 
-    def _prior(self, rec: StepRecord) -> str | None:
-        """The prior is a settled record this drone holds, within PRIOR_STEPS."""
+    def _prior(self, rec: StepRecord, unknown_ok: bool = False) -> str | None:
+        """The prior is a settled record this drone holds, within PRIOR_STEPS (``unknown_ok``:
+        or one it holds no record for)."""
         if rec.prior_step < 0:
             return None
         if not rec.step - PRIOR_STEPS <= rec.prior_step < rec.step:
@@ -277,7 +319,7 @@ class Auditor:
         if applied is not None:
             held.append(applied)
         if not held:
-            return f"prior step {rec.prior_step}: this drone holds no record for it"
+            return None if unknown_ok else f"prior step {rec.prior_step}: this drone holds no record for it"
         for h in held:
             if (
                 h.status not in UNSETTLED

@@ -57,7 +57,10 @@ from swarmraft.raft.types import (
 
 class RaftNode:
     """``validate`` (optional): the host's check of a new entry before the node persists and
-    acknowledges it (a SwarmRaft voter's audit of its leader's record). See `_handle_append`."""
+    acknowledges it (a SwarmRaft voter's audit of its leader's record). See `_handle_append`.
+    ``validate_snapshot`` (optional): the same for a leader's snapshot before the node
+    installs it (`_handle_snapshot`): a snapshot holds the state the entries it replaces
+    made, and a leader that could send any would get round ``validate``."""
 
     def __init__(
         self,
@@ -66,9 +69,11 @@ class RaftNode:
         rng: random.Random,
         applied: int = 0,
         validate: Callable[[Entry], bool] | None = None,
+        validate_snapshot: Callable[[Snapshot], bool] | None = None,
     ) -> None:
         self.config = config
         self.validate = validate
+        self.validate_snapshot = validate_snapshot
         self.refused = 0  # entries ``validate`` refused
         self.id = config.id
         self.rng = rng
@@ -729,6 +734,12 @@ class RaftNode:
             pass  # older than what we have committed: nothing to do
         elif self.log.match_term(snap.index, snap.term):
             self.log.commit_to(snap.index)  # we hold its last entry: our log covers it
+        elif self.validate_snapshot is not None and not self.validate_snapshot(snap):
+            # refused as an entry is: not installed, not acknowledged (no reject), counted,
+            # and the leader deposed
+            self.refused += 1
+            self.depose(m.frm)
+            return
         else:
             self.log.restore(snap)
             self.confs = self._base_confs(snap)  # the log it replaced held the configurations

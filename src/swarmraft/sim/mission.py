@@ -19,7 +19,7 @@ from swarmraft.protocol.committee import initial_committee, next_change
 from swarmraft.protocol.drift import DriftVerdict, realign_test, realigns
 from swarmraft.protocol.drone import RecordMemo
 from swarmraft.protocol.memo import BoundedMemo, record_digest
-from swarmraft.raft import ConfState, Entry, EntryKind, SnapshotPolicy, Storage
+from swarmraft.raft import ConfState, Entry, EntryKind, Snapshot, SnapshotPolicy, Storage
 from swarmraft.raft.types import ConfChangeRefused, NotLeader
 from swarmraft.sim.agreement import RecordAgreement
 from swarmraft.sim.lying import drops_report, falsify
@@ -226,6 +226,7 @@ class Mission:
             app_restore=lambda node, snap: self.drones[node - 1].restore(snap.data),
             storage=storage,
             validate=self._validate if self.auditing else None,
+            validate_snapshot=self._validate_snapshot if self.auditing else None,
         )
         for j in sorted(sc.joiners):  # not started before it joins (its storage is empty)
             self.cluster.crash(j)
@@ -493,6 +494,16 @@ class Mission:
             self.suspicions.append((now, node, why))
             # deposed once this append is done (`RaftNode.depose`), unless the term moved on
             self.cluster.loop.after(0, self._depose, node, term)
+        return ok
+
+    def _validate_snapshot(self, node: int, snap: Snapshot) -> bool:
+        """Node's validator of a leader's snapshot (its drone's audit); a refusal is logged."""
+        audit = self.drones[node - 1].audit
+        n_refused = len(audit.refused)
+        ok = audit.validate_snapshot(snap)
+        if not ok:
+            step, reason = audit.refused[n_refused]
+            self.refusals.append((self.cluster.now / 1000, node, step, reason))
         return ok
 
     def _depose(self, node: int, term: int) -> None:

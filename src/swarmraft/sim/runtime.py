@@ -101,7 +101,7 @@ class Cluster:
     and ``app_restore(i, snapshot)``: the host's state machine of node i (its encoding at the
     node's applied index, and its restoration); ``storage``: node i's storage (a
     `MemoryStorage` when None); ``validate(node, entry)``: every node's validator of new
-    entries (`RaftNode`).
+    entries, ``validate_snapshot(node, snapshot)`` of a leader's snapshot (`RaftNode`).
     """
 
     def __init__(
@@ -123,6 +123,7 @@ class Cluster:
         app_restore: Callable[[int, Snapshot], None] | None = None,
         storage: Callable[[int], Storage] | None = None,
         validate: Callable[[int, Entry], bool] | None = None,
+        validate_snapshot: Callable[[int, Snapshot], bool] | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("Cluster: n must be >= 1")
@@ -165,6 +166,7 @@ class Cluster:
         self.delivered: Counter[str] = Counter()
         self.on_apply = on_apply
         self.validate = validate
+        self.validate_snapshot = validate_snapshot
         for i in self.ids:
             self._start(i)
         self.loop.after(tick_ms, self._tick_all)
@@ -174,7 +176,10 @@ class Cluster:
         self._incarnation[i] += 1
         node_rng = random.Random(self.seed * 1_000_003 + i * 10_007 + self._incarnation[i])
         check = partial(self.validate, i) if self.validate is not None else None
-        self.nodes[i] = RaftNode(self.configs[i], self.storage[i], node_rng, validate=check)
+        check_snap = partial(self.validate_snapshot, i) if self.validate_snapshot is not None else None
+        self.nodes[i] = RaftNode(
+            self.configs[i], self.storage[i], node_rng, validate=check, validate_snapshot=check_snap
+        )
         self._applied[i] = []  # the state machine is volatile: restored from the snapshot, then re-applied
         if self.checker:
             self.checker.restarted(i)

@@ -688,3 +688,30 @@ def test_a_leaders_snapshot_is_audited_before_it_is_installed() -> None:
     node.step(Message(MsgType.SNAP, 2, 3, 1, snapshot=Snapshot(50, 1, honest.encode())))
     rd = node.ready()
     assert rd.snapshot is not None and node.status.refused == 0
+
+
+def test_a_record_audited_in_one_term_is_refused_in_an_entry_of_another() -> None:
+    """The shortcut for bytes already audited skipped the term check: a record of term 1,
+    passed once, went into an entry of term 2 unchecked."""
+    v, chain, _ = voter_through(13)  # chain[12] audited in term 1
+    assert v.audit.validate(Entry(1, 20, chain[12]))
+    assert not v.audit.validate(Entry(2, 21, chain[12]))
+    assert v.audit.refused[-1][1] == "a record of term 1 in an entry of term 2"
+
+
+def test_a_drone_state_that_does_not_decode_is_a_value_error() -> None:
+    """`Applied.decode` promises a ValueError naming what is wrong; a record inside whose
+    JSON text is `5` raised TypeError, one with a bad source byte IndexError."""
+    import json
+    import struct
+
+    from swarmraft.protocol.drone import Applied
+
+    _, _, chain = honest_chain()
+    rec = StepRecord.decode(chain[12])
+    body = rec.body()
+    text = json.dumps([rec.status, rec.detector, rec.digest, rec.params]).encode()
+    bad = body[: len(body) - len(text) - 4] + struct.pack("<I", 1) + b"5" + rec.signature
+    blob = Applied({}, [], 0, 0).encode()[:-4] + struct.pack("<I", 1) + struct.pack("<I", len(bad)) + bad
+    with pytest.raises(ValueError, match="drone state: a record does not decode"):
+        Applied.decode(blob)

@@ -119,7 +119,7 @@ class Auditor:
         if not 0 <= self.k < self.m:
             raise ValueError(f"censor: need 0 <= k < m, got k={self.k}, m={self.m}")
         self.tolerance = POSITION_TOL_M
-        self._passed: OrderedDict[bytes, None] = OrderedDict()
+        self._passed: OrderedDict[bytes, int] = OrderedDict()  # digest -> the record's term
         self.seen: dict[int, list[StepRecord]] = {}  # step -> records held for it
         self.refused: list[tuple[int, str]] = []  # (step, reason)
         self.clock: int | None = None  # the step this drone's clock has reached (`at_step`)
@@ -142,7 +142,7 @@ class Auditor:
         return record_digest(data) in self._passed
 
     def _hold(self, data: bytes, rec: StepRecord) -> None:
-        self._passed[record_digest(data)] = None
+        self._passed[record_digest(data)] = rec.term
         while len(self._passed) > 4 * KEEP_STEPS:
             self._passed.popitem(last=False)
         self.seen.setdefault(rec.step, []).append(rec)
@@ -187,8 +187,14 @@ class Auditor:
         """The Raft node's validator: whether ``entry`` may enter this drone's log."""
         if entry.kind != EntryKind.NORMAL:
             return True
-        if self.passed(entry.data):
-            return True
+        held = self._passed.get(record_digest(entry.data))
+        if held is not None:
+            if held == entry.term:
+                return True
+            # bytes audited before, now in an entry of another term: the term check, which
+            # the shortcut skipped
+            self._refuse(-1, f"a record of term {held} in an entry of term {entry.term}")
+            return False
         rec, reason = self.check(entry.data, entry.term)
         if reason is None and rec is not None:
             self._censorship(rec)

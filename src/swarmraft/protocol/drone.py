@@ -118,6 +118,8 @@ class Applied:
                 off += size
         except struct.error as exc:
             raise ValueError(f"drone state: truncated ({exc})") from exc
+        except (TypeError, IndexError, KeyError, UnicodeDecodeError) as exc:  # a record's parts
+            raise ValueError(f"drone state: a record does not decode ({type(exc).__name__}: {exc})") from exc
         if off != len(data):
             raise ValueError(f"drone state: {len(data) - off} bytes after the last record")
         return cls(records, skipped, last_step, ignored)

@@ -375,7 +375,9 @@ class Mission:
         lie = self._lie
         if self._lying and node == self.liar and drops_report(lie, rep):
             return  # the lying leader drops the drone's reports
-        if drone.audit is not None:
+        if drone.audit is not None and rep.drone != node - 1:
+            # not its own (a drone holds that whoever leads: the drone process's rule; held,
+            # a leader that stepped down counted its own in-flight reports against the next)
             drone.audit.note_report(rep)
         accepted = drone.receive(rep)
         if accepted:

@@ -269,13 +269,17 @@ def test_censorship_windows_restart_with_each_term() -> None:
     for k in range(1, 3):
         v.apply(chain[k - 1])
         assert v.audit.validate(record(k, 1))
+        v.audit.close_step(k)  # judged once the step has closed here
     assert v.audit.take_suspicion() is None  # two omissions: not more than k = 2
     for k in range(3, 5):  # a new term: the window restarts
         v.apply(chain[k - 1])
         assert v.audit.validate(record(k, 2))
+        v.audit.close_step(k)
     assert v.audit.take_suspicion() is None
     v.apply(chain[4])
     assert v.audit.validate(record(5, 2))
+    assert v.audit.take_suspicion() is None  # the step is open: not judged yet
+    v.audit.close_step(5)
     why = v.audit.take_suspicion()
     assert why is not None and "drone 7" in why
 
@@ -715,3 +719,30 @@ def test_a_drone_state_that_does_not_decode_is_a_value_error() -> None:
     blob = Applied({}, [], 0, 0).encode()[:-4] + struct.pack("<I", 1) + struct.pack("<I", len(bad)) + bad
     with pytest.raises(ValueError, match="drone state: a record does not decode"):
         Applied.decode(blob)
+
+
+@pytest.mark.parametrize("order", ["reports first", "record first"])
+def test_omissions_are_judged_against_the_reports_held_when_the_step_closes(order: str) -> None:
+    """A leader that proposed before the fan-out's copies arrived was never found leaving a
+    report out (the record was judged as it came, against nothing held yet): now a record is
+    judged when its step closes here, whichever came first."""
+    w, keys, chain = honest_chain(21)
+    v = SwarmDrone(1, w.protocol, keys, audit=True, censor=(10, 20))
+    found = None
+    for k in range(21):
+        rec = StepRecord.decode(chain[k])
+        kept = {r.drone: r for r in rec.reports if r.drone != 4}  # drone 5's left out
+        lie = replace(compute_record(k, 1, kept, None, w.protocol), leader=0)
+        entry = Entry(1, k + 1, resealed(lie, keys), EntryKind.NORMAL)
+        others = [r for r in rec.reports if r.drone != 1]
+        v.audit.at_step(k)
+        if order == "record first":
+            assert v.audit.validate(entry)
+        for r in others:
+            v.audit.note_report(r)
+        if order == "reports first":
+            assert v.audit.validate(entry)
+        v.audit.close_step(k)
+        if found is None and (why := v.audit.take_suspicion()) is not None:
+            found = (k, why)
+    assert found == (10, "drone 5's reports left out of 11 of the last 20 steps")

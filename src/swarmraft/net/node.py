@@ -940,7 +940,7 @@ class DroneHost:
         if self.drone.audit is not None:
             # reports of step k arriving later are not timely for the censorship check: the
             # leader has half a deadline more, and this resend, to get its own copy
-            self.drone.audit.close_step(k)
+            self._close_step(k)
         report = self._reports.get(k)
         if self._late(k, self.sc.protocol.deadline_ms / 1000):
             return
@@ -983,8 +983,20 @@ class DroneHost:
         12 steps in a row, and a voter whose timer fired late still held them as timely)."""
         audit = self.drone.audit
         if self._late(report.step, self.sc.protocol.deadline_ms / 2000):
-            audit.close_step(report.step)
+            self._close_step(report.step)
         return audit.note_report(report)
+
+    def _close_step(self, k: int) -> None:
+        """Step k closes for the censorship check (`Auditor.close_step`): a record of it that
+        came before is judged now, and a finding deposes the leader."""
+        audit = self.drone.audit
+        if k in audit.closed:
+            return
+        audit.close_step(k)
+        term = audit.omission_term
+        why = audit.take_suspicion()
+        if why is not None:
+            self._censorship_found(why, term)
 
     def _deadline(self, k: int) -> None:
         if self._late(k, self.sc.protocol.deadline_ms / 1000 + self.sc.dt_s):

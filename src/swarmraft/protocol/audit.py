@@ -128,6 +128,7 @@ class Auditor:
         self.closed: set[int] = set()
         self.omissions: dict[int, list[int]] = {}  # drone -> steps its report was left out
         self.omission_term = -1
+        self._unjudged: dict[int, tuple[int, set[int]]] = {}  # step -> (term, drones carried)
         self.suspicion: str | None = None
 
     def at_step(self, k: int) -> None:
@@ -370,29 +371,44 @@ class Auditor:
         return True
 
     def close_step(self, step: int) -> None:
-        """Step ``step``'s deadline passed here: reports arriving later are not timely."""
+        """Step ``step``'s deadline passed here: reports arriving later are not timely. A
+        record of that step validated before now is judged for omissions now (its host then
+        asks `take_suspicion`), against the reports held by this moment."""
         self.at_step(step)
         self.closed.add(step)
+        if (pending := self._unjudged.pop(step, None)) is not None:
+            self._judge(step, *pending)
         for old in [s for s in self.closed if s < step - KEEP_STEPS]:
             self.closed.discard(old)
             self.timely.pop(old, None)
         for old in [s for s in self.timely if s < step - KEEP_STEPS]:
             del self.timely[old]
+        for old in [s for s in self._unjudged if s < step - KEEP_STEPS]:
+            del self._unjudged[old]
 
     def _censorship(self, rec: StepRecord) -> None:
-        if rec.term != self.omission_term:
-            self.omissions.clear()  # a new leader starts with a clean slate
-            self.omission_term = rec.term
+        """A record's omissions, judged once its step has closed here (at once if it has):
+        judged when the record came, a leader that proposed before the fan-out's copies
+        arrived was never found leaving anyone out (even a record carrying its own report
+        alone)."""
         carried = {r.drone for r in rec.reports}
-        for d in self.timely.get(rec.step, set()) - carried:
+        if rec.step in self.closed:
+            self._judge(rec.step, rec.term, carried)
+        else:
+            self._unjudged.setdefault(rec.step, (rec.term, carried))
+
+    def _judge(self, step: int, term: int, carried: set[int]) -> None:
+        if term != self.omission_term:
+            self.omissions.clear()  # a new leader starts with a clean slate
+            self.omission_term = term
+        for d in self.timely.get(step, set()) - carried:
             steps = self.omissions.setdefault(d, [])
-            steps.append(rec.step)
-            recent = [s for s in steps if s > rec.step - self.m]
+            steps.append(step)
+            recent = [s for s in steps if s > step - self.m]
             self.omissions[d] = recent
             if len(recent) > self.k and self.suspicion is None:
-                self.suspicion = (
-                    f"drone {d + 1}'s reports left out of {len(recent)} of the last {self.m} steps"
-                )
+                left = f"left out of {len(recent)} of the last {self.m} steps"
+                self.suspicion = f"drone {d + 1}'s reports {left}"
 
     def take_suspicion(self) -> str | None:
         """Why this drone now treats its leader as faulty (once), or None."""

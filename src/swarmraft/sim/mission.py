@@ -396,8 +396,9 @@ class Mission:
 
     def _deadline(self, k: int) -> None:
         if self.auditing:
-            for d in self.drones:
-                d.audit.close_step(k)
+            for i, d in enumerate(self.drones):
+                d.audit.close_step(k)  # a record of step k that came before is judged now
+                self._suspect(i + 1)
         lead = self.cluster.leader()
         self.log.leader[k] = lead or 0
         if lead is None:
@@ -490,13 +491,19 @@ class Mission:
         if not ok:
             step, reason = audit.refused[n_refused]
             self.refusals.append((now, node, step, reason))
+        self._suspect(node)
+        return ok
+
+    def _suspect(self, node: int) -> None:
+        """A censorship finding of node's audit (after a record or a step's close) is logged
+        and deposes the leader, once the event at hand is done (`RaftNode.depose`), unless
+        the term moved on."""
+        audit = self.drones[node - 1].audit
         term = audit.omission_term
         why = audit.take_suspicion()
         if why is not None:
-            self.suspicions.append((now, node, why))
-            # deposed once this append is done (`RaftNode.depose`), unless the term moved on
+            self.suspicions.append((self.cluster.now / 1000, node, why))
             self.cluster.loop.after(0, self._depose, node, term)
-        return ok
 
     def _validate_snapshot(self, node: int, snap: Snapshot) -> bool:
         """Node's validator of a leader's snapshot (its drone's audit); a refusal is logged."""

@@ -268,7 +268,10 @@ def launch(
     if flown == 0:
         if session is not None:
             session.stop()
-        err_console.print(f"interrupted ({run.signal_name}) before step 0: nothing flown, nothing written")
+        err_console.print(
+            f"interrupted ({run.signal_name}) before step 0: nothing flown, no results written "
+            f"({out} holds the swarm's keys and files: give another --out to launch again)"
+        )
         sys.exit(run.exit_status)
     g = gather_steps(run.nodes_dir, n, flown - 1, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()

@@ -169,8 +169,9 @@ def calibration_table(rows: Sequence[tuple[int, object]], title: str) -> tuple[T
 STATUS_LEGEND = (
     "term, commit, applied, last: the drone's Raft term, commit index, applied index and last "
     "log index; step: the last step it applied; now: the step the clock is at, of the steps; "
-    "reach: peers heard from within the longest election timeout (a follower hears only its "
-    "leader); quorum: a leader with those makes a majority, or a follower heard its leader; "
+    "reach: peers heard from within the longest election timeout (a follower hears its leader, "
+    "and with the audit on every drone's report fan-out too); quorum: a leader with those makes "
+    "a majority, or a follower heard its leader; "
     "dropped: datagrams its Verifier refused, by reason."
 )
 

@@ -573,8 +573,9 @@ def test_launch_stopped_before_step_0_writes_no_results(tmp_path):
     finally:
         launch.kill()
     assert launch.returncode == 143, stdout + stderr
-    assert "interrupted (SIGTERM) before step 0: nothing flown, no results written (" in stderr
-    assert "holds the swarm's keys and files: give another --out to launch again)" in stderr
+    said = " ".join(stderr.split())  # wrapped to the terminal's width
+    assert "interrupted (SIGTERM) before step 0: nothing flown, no results written (" in said
+    assert "holds the swarm's keys and files: give another --out to launch again)" in said
     assert not (out / "summary.json").exists() and not (out / "steps.csv").exists()
 
 

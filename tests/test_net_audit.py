@@ -183,3 +183,41 @@ def test_a_leader_keeps_its_quorum_while_its_voters_audit_slowly(tmp_path, monke
     _, seen, _ = swarm_of_hosts(tmp_path, "move", watch)
     assert seen["terms"] == [seen["first"]] * N, seen
     assert sum(a > 0 for a in seen["audits"]) >= N - 1  # the voters did audit, slowly
+
+
+def test_appends_the_node_drops_unread_are_not_audited(tmp_path):
+    """A liar sends its next records while its first lie is audited; once deposed, its held
+    appends (and a stale term's) are stepped unaudited, the node dropping them
+    (`RaftNode.ignores`): each audit is a full re-run, and on a loaded machine those of a
+    liar's queued records delayed the next leader's appends behind them."""
+    import random
+
+    from swarmraft.raft import Entry, EntryKind, MemoryStorage, Message, MsgType, RaftConfig, RaftNode
+
+    scenario = tmp_path / "scenario-src.toml"
+    scenario.write_text(SCENARIO.format(mode="move"))
+    path, _ = prepare_swarm(tmp_path / "run", scenario, N, time.time() + 60)
+    host = DroneHost(load_swarm(path), 3)
+    host.node = RaftNode(RaftConfig(3, (1, 2, 4, 5)), MemoryStorage(), random.Random(0))
+    host.node.step(Message(MsgType.HEARTBEAT, 2, 3, 1))
+    host.node.advance(host.node.ready())
+    host.node.depose(2)  # its lie was refused
+    stepped, audited = [], []
+    host._push = stepped.append
+
+    class Loop:  # records what is sent to the audit thread; the audit never finishes here
+        def run_in_executor(self, pool, fn, *args):  # noqa: ANN001, ANN202
+            audited.append(args)
+            return type("Pending", (), {"add_done_callback": lambda self, cb: None})()
+
+    host._loop = Loop()
+    host._audit_pool = None  # the loop above is asked to run the audit, never a pool
+    record = Entry(1, 1, b"a record not checked yet", EntryKind.NORMAL)
+    from_liar = Message(MsgType.APP, 2, 3, 1, log_term=0, index=0, entries=(record,), commit=0)
+    host._held_apps.append(from_liar)
+    host._preaudit()
+    assert len(stepped) == 1 and not audited and not host._held_apps
+    from_next = Message(MsgType.APP, 4, 3, 2, log_term=0, index=0, entries=(record,), commit=0)
+    host._held_apps.append(from_next)
+    host._preaudit()
+    assert len(audited) == 1 and len(stepped) == 1  # the next leader's append: audited first

@@ -746,3 +746,91 @@ def test_omissions_are_judged_against_the_reports_held_when_the_step_closes(orde
         if found is None and (why := v.audit.take_suspicion()) is not None:
             found = (k, why)
     assert found == (10, "drone 5's reports left out of 11 of the last 20 steps")
+
+
+def test_an_honest_snapshot_whose_records_priors_reach_before_it_installs() -> None:
+    """A leader's prior is its newest settled applied record within 3 steps, so a record's
+    prior is often not the record before it (that one an alarm, or not applied yet when the
+    next step was verified). A snapshot trimmed so that such a prior falls before its oldest
+    record was refused ('prior step k-1: this drone holds no record for it') by every drone
+    that needed it: found by a review, end to end in the simulator (the drone stayed behind
+    and deposed each honest leader that sent it). A prior before the snapshot's oldest record
+    is not checked; one inside it must be the record held for that step."""
+    from swarmraft.protocol.drone import RECORDS_KEPT, Applied
+    from swarmraft.raft import Snapshot
+
+    N9 = 9
+    sc = Scenario(
+        name="t",
+        seed=3,
+        drones=N9,
+        duration_s=6.0,
+        spoof=[{"kind": "jump", "drones": [3], "start_s": 0.5, "magnitude": 30.0}],
+    )
+    w = ScenarioWorld.build(sc)
+    keys = Keyring.generate(N9, np.random.default_rng(0))
+    leader = SwarmDrone(0, w.protocol, keys, audit=True)
+    base_t, base_pos = np.zeros(N9), w.traj.positions[0].copy()
+    pending, steps = None, 40
+    for k in range(steps):
+        ins = w.ins_estimate(k, base_t, base_pos)
+        ranges = w.measured_ranges(k, ins)
+        for i in range(N9):
+            report = SwarmDrone(i, w.protocol, keys).make_report(
+                k, w.fix[k, i], "gnss", ranges[i], w.innovation(k, i)
+            )
+            leader.receive(report)
+        data = leader.seal(leader.verify_step(k, 1))
+        if k == steps - RECORDS_KEPT:  # this record committed a step late: the next one's prior is older
+            pending = data
+            continue
+        if pending is not None:
+            leader.apply(pending)
+            pending = None
+        leader.apply(data)
+    st = leader.state
+    oldest = min(st.records)
+    assert st.records[oldest + 1].prior_step < oldest  # the case
+    follower = SwarmDrone(2, w.protocol, keys, audit=True)  # behind: holds nothing
+    follower.audit.at_step(steps)
+    honest = Applied(dict(st.records), st.skipped, st.last_step, st.ignored)
+    assert follower.audit.validate_snapshot(Snapshot(5000, 1, honest.encode())), follower.audit.refused[-1:]
+
+
+def test_records_of_two_terms_for_one_step_are_both_judged_each_for_its_leader() -> None:
+    """Two records for one open step (the old leader's, then the new one's): the close judges
+    the new leader's, and the old term's is not counted against it nor resets its tally (only
+    the first to come was kept: the old one, judged for term 1)."""
+    w, keys, chain = honest_chain()
+    v = SwarmDrone(1, w.protocol, keys, audit=True, censor=(0, 5))
+    rec = StepRecord.decode(chain[3])
+    kept = {r.drone: r for r in rec.reports if r.drone != 6}
+    for r in rec.reports:
+        v.audit.note_report(r)
+    old = replace(compute_record(3, 1, kept, None, w.protocol), leader=0)
+    new = replace(compute_record(3, 2, kept, None, w.protocol), leader=2)
+    v.audit._censorship(old)  # the old leader's record came first
+    v.audit._censorship(new)
+    v.audit.close_step(3)
+    assert v.audit.omission_term == 2 and v.audit.omissions == {6: [3]}  # the new leader's, once
+    assert v.audit.take_suspicion() == "drone 7's reports left out of 1 of the last 5 steps"
+
+
+def test_a_lagging_clock_catches_up_with_a_majoritys_reports() -> None:
+    """A networked drone's clock is its wall clock: one lagging the others' by more than
+    FUTURE_STEPS steps refused every honest record as ahead (a review's finding). Signed
+    reports of a step from a majority of the swarm move its clock there; a minority's do not
+    (a liar and its accomplices cannot push it ahead)."""
+    w, keys, chain = honest_chain()
+    v, _, _ = voter_through(12)  # clock at 12
+    rec = StepRecord.decode(chain[12])
+
+    def at(step: int, drones: range) -> None:
+        for r in rec.reports:
+            if r.drone in drones:
+                v.audit.note_report(keys.sign(replace(r, step=step, signature=b"")))
+
+    at(20, range(2, 5))  # 3 others (4 with itself) of 9: a minority
+    assert v.audit.clock == 12
+    at(20, range(2, 6))  # 4 others, 5 with itself: a majority
+    assert v.audit.clock == 20

@@ -717,7 +717,7 @@ class DroneHost:
         self._heard[got.sender] = time.monotonic()
         if isinstance(got.message, Message):
             m = got.message
-            if m.type == MsgType.APP:
+            if m.type in (MsgType.APP, MsgType.SNAP):
                 self._audit_clock()
             if m.type in (MsgType.APP, MsgType.SNAP) and (self._held_apps or self._audits(m)):
                 if len(self._held_apps) >= HELD_APPS:
@@ -957,7 +957,8 @@ class DroneHost:
             self.counters["reports_censored"] += 1
             return  # the lying leader drops the drone's reports (the simulator's Mission._receive)
         if self.drone.audit is not None:
-            self._note_for_censorship(report)
+            if report.drone != self.index:  # no drone holds its own (docs/audit.md)
+                self._note_for_censorship(report)
             if self.node.role != Role.LEADER:
                 return  # a fanned-out report, or one for a leader this drone no longer is
         if self._verifying is not None:

@@ -128,13 +128,16 @@ class Auditor:
         self.closed: set[int] = set()
         self.omissions: dict[int, list[int]] = {}  # drone -> steps its report was left out
         self.omission_term = -1
-        self._unjudged: dict[int, tuple[int, set[int]]] = {}  # step -> (term, drones carried)
+        self._unjudged: dict[int, list[tuple[int, set[int]]]] = {}  # step -> [(term, carried)]
         self.suspicion: str | None = None
 
     def at_step(self, k: int) -> None:
         """This drone's clock has reached step k (its host calls this as each step begins, and
-        a networked host from the wall clock as messages come): a record more than
-        FUTURE_STEPS ahead of it is refused. Until a host calls it nothing is ahead."""
+        a networked host from the wall clock as messages come; and it moves on by itself to a
+        step whose signed reports it holds from a majority of the swarm, `note_report`, so
+        that a drone whose clock lags the others' does not refuse their leader's records): a
+        record more than FUTURE_STEPS ahead of it is refused. Until a host calls it nothing
+        is ahead."""
         self.clock = k if self.clock is None else max(self.clock, k)
 
     # -- the records this drone holds --------------------------------------------------------
@@ -209,9 +212,10 @@ class Auditor:
         got round the audit of entries. Refused (False, the reason in ``refused``) unless
         it decodes; its last step is its newest record's (-1 with none), ahead of no skipped
         step, and at most FUTURE_STEPS ahead of this drone's clock; and each record passes
-        `check` in step order (signatures, the re-run, the clock; each record's prior the
-        one before it). The oldest record's prior is checked where this drone holds a record
-        for that step: a drone that needs a snapshot is behind, and may hold none."""
+        `check` in step order (signatures, the re-run, the clock; a record's prior inside
+        the snapshot must be its record for that step). A prior before the snapshot's
+        oldest record is checked where this drone holds a record for that step: a drone
+        that needs a snapshot is behind, and may hold none."""
         reason = self._state_problem(snap.data)
         if reason is not None:
             self._refuse(-1, f"snapshot at index {snap.index}: {reason}")
@@ -231,9 +235,12 @@ class Auditor:
             return "a skipped step at or after its last step"
         if self.clock is not None and state.last_step > self.clock + FUTURE_STEPS:
             return f"last step {state.last_step} is ahead of this drone's clock (step {self.clock})"
-        for i, k in enumerate(steps):
+        for k in steps:
             rec = state.records[k]
-            _, why = self.check(rec.encode(), prior_unknown_ok=i == 0)
+            # a prior before the oldest record kept is not in the snapshot (a record's prior is
+            # often not the record before it: that one an alarm, or not yet applied when this
+            # step was verified); one inside it must be the record held for that step
+            _, why = self.check(rec.encode(), prior_unknown_ok=rec.prior_step < steps[0])
             if why is not None:
                 return f"its record of step {k}: {why}"
         return None
@@ -367,7 +374,13 @@ class Auditor:
             ok = good(report())
         if not ok:
             return False
-        self.timely.setdefault(step, set()).add(drone)
+        held = self.timely.setdefault(step, set())
+        held.add(drone)
+        if 2 * (len(held) + 1) > self.drone.config.n:
+            # a majority of the swarm (this drone with them) has reached this step: a clock
+            # that lags theirs (the networked drone's wall clock) catches up, so that their
+            # leader's records are not refused as ahead
+            self.at_step(step)
         return True
 
     def close_step(self, step: int) -> None:
@@ -376,8 +389,9 @@ class Auditor:
         asks `take_suspicion`), against the reports held by this moment."""
         self.at_step(step)
         self.closed.add(step)
-        if (pending := self._unjudged.pop(step, None)) is not None:
-            self._judge(step, *pending)
+        # the newest leader's first: an earlier term's record for the step is then not judged
+        for term, carried in sorted(self._unjudged.pop(step, []), key=lambda p: -p[0]):
+            self._judge(step, term, carried)
         for old in [s for s in self.closed if s < step - KEEP_STEPS]:
             self.closed.discard(old)
             self.timely.pop(old, None)
@@ -395,10 +409,12 @@ class Auditor:
         if rec.step in self.closed:
             self._judge(rec.step, rec.term, carried)
         else:
-            self._unjudged.setdefault(rec.step, (rec.term, carried))
+            self._unjudged.setdefault(rec.step, []).append((rec.term, carried))
 
     def _judge(self, step: int, term: int, carried: set[int]) -> None:
-        if term != self.omission_term:
+        if term < self.omission_term:
+            return  # an earlier leader's record, judged after a later one's: not its tally
+        if term > self.omission_term:
             self.omissions.clear()  # a new leader starts with a clean slate
             self.omission_term = term
         for d in self.timely.get(step, set()) - carried:

@@ -62,6 +62,7 @@ POSITION_TOL_M = 1e-3
 CENSOR = (10, 20)
 #: steps of reports, records and omissions kept
 KEEP_STEPS = 64
+_MISSING = object()  # a memo's miss (its values include None: a passing record)
 #: steps a record may be ahead of the auditing drone's own clock (`Auditor.at_step`): the
 #: clock difference allowed between a leader and its voters (0.3 s at 10 Hz). A record for a
 #: step far ahead, carrying only the liar's own signed report for that step, passed every
@@ -277,8 +278,9 @@ class Auditor:
     def _evidence(self, data: bytes, rec: StepRecord) -> str | None:
         """The checks that depend only on the bytes (memoised in ``cache``)."""
         key = record_digest(data)
-        if self.cache is not None and key in self.cache:
-            return self.cache[key]
+        # one read (`get`), not `in` then `[]`: the audit thread may forget the item between
+        if self.cache is not None and (hit := self.cache.get(key, _MISSING)) is not _MISSING:
+            return hit
         reason = self._evidence_uncached(rec, data[: len(data) - len(rec.signature)])
         if self.cache is not None:
             self.cache[key] = reason
@@ -367,9 +369,9 @@ class Auditor:
 
         if self.cache is not None and data is not None:
             key = b"report" + record_digest(data)  # one bytes object per fanned-out report
-            if key not in self.cache:
-                self.cache[key] = good(report())
-            ok = self.cache[key]
+            ok = self.cache.get(key)  # one read: another thread may forget it meanwhile
+            if ok is None:
+                ok = self.cache[key] = good(report())
         else:
             ok = good(report())
         if not ok:

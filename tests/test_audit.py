@@ -24,22 +24,22 @@ from swarmraft.sim.sensing import ScenarioWorld
 N = 9
 
 
-@cache
-def honest_chain(steps: int = 14) -> tuple[ScenarioWorld, Keyring, list[bytes]]:
+def leader_run(steps: int, late: int | None = None) -> tuple[ScenarioWorld, Keyring, SwarmDrone, list[bytes]]:
     """A leader's sealed records of ``steps`` steps of a 9-drone world (drone 3 spoofed by
-    30 m from 0.5 s), each with the previous one as its prior."""
+    30 m from 0.5 s), each applied as it is made, but that of step ``late``, applied after
+    the next one was verified (committed a step late: the next record's prior is older)."""
     sc = Scenario(
         name="t",
         seed=3,
         drones=N,
-        duration_s=2.0,
+        duration_s=max(2.0, 0.1 * steps + 0.5),
         spoof=[{"kind": "jump", "drones": [3], "start_s": 0.5, "magnitude": 30.0}],
     )
     w = ScenarioWorld.build(sc)
     keys = Keyring.generate(N, np.random.default_rng(0))
     leader = SwarmDrone(0, w.protocol, keys, audit=True)
     base_t, base_pos = np.zeros(N), w.traj.positions[0].copy()
-    out = []
+    out, pending = [], None
     for k in range(steps):
         ins = w.ins_estimate(k, base_t, base_pos)
         ranges = w.measured_ranges(k, ins)
@@ -49,8 +49,22 @@ def honest_chain(steps: int = 14) -> tuple[ScenarioWorld, Keyring, list[bytes]]:
             )
             leader.receive(r)
         data = leader.seal(leader.verify_step(k, 1))
-        leader.apply(data)
         out.append(data)
+        if k == late:
+            pending = data
+            continue
+        if pending is not None:
+            leader.apply(pending)
+            pending = None
+        leader.apply(data)
+    return w, keys, leader, out
+
+
+@cache
+def honest_chain(steps: int = 14) -> tuple[ScenarioWorld, Keyring, list[bytes]]:
+    """A leader's sealed records of ``steps`` steps (`leader_run`), each with the previous
+    one as its prior."""
+    w, keys, _, out = leader_run(steps)
     return w, keys, out
 
 
@@ -759,35 +773,8 @@ def test_an_honest_snapshot_whose_records_priors_reach_before_it_installs() -> N
     from swarmraft.protocol.drone import RECORDS_KEPT, Applied
     from swarmraft.raft import Snapshot
 
-    N9 = 9
-    sc = Scenario(
-        name="t",
-        seed=3,
-        drones=N9,
-        duration_s=6.0,
-        spoof=[{"kind": "jump", "drones": [3], "start_s": 0.5, "magnitude": 30.0}],
-    )
-    w = ScenarioWorld.build(sc)
-    keys = Keyring.generate(N9, np.random.default_rng(0))
-    leader = SwarmDrone(0, w.protocol, keys, audit=True)
-    base_t, base_pos = np.zeros(N9), w.traj.positions[0].copy()
-    pending, steps = None, 40
-    for k in range(steps):
-        ins = w.ins_estimate(k, base_t, base_pos)
-        ranges = w.measured_ranges(k, ins)
-        for i in range(N9):
-            report = SwarmDrone(i, w.protocol, keys).make_report(
-                k, w.fix[k, i], "gnss", ranges[i], w.innovation(k, i)
-            )
-            leader.receive(report)
-        data = leader.seal(leader.verify_step(k, 1))
-        if k == steps - RECORDS_KEPT:  # this record committed a step late: the next one's prior is older
-            pending = data
-            continue
-        if pending is not None:
-            leader.apply(pending)
-            pending = None
-        leader.apply(data)
+    steps = 40
+    w, keys, leader, _ = leader_run(steps, late=steps - RECORDS_KEPT)
     st = leader.state
     oldest = min(st.records)
     assert st.records[oldest + 1].prior_step < oldest  # the case

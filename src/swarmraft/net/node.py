@@ -671,11 +671,17 @@ class DroneHost:
 
     def _audited_for_apply(self, fut: asyncio.Future) -> None:
         self._apply_audit = None
-        if not fut.cancelled() and (exc := fut.exception()) is not None:
-            self.counters["preaudit_failed"] += 1  # the apply checks it again (and refuses)
-            _logger.error("drone %d: an audit failed", self.id, exc_info=exc)
+        self._audit_failed(fut)  # the apply then checks it again (and refuses it if it raises)
         if not self._stopping:
             self._apply_queued()
+
+    def _audit_failed(self, fut: asyncio.Future) -> None:
+        """An audit-thread job that did not finish (cancelled, or raised) is counted and logged."""
+        if fut.cancelled():
+            self.counters["preaudit_failed"] += 1
+        elif (exc := fut.exception()) is not None:
+            self.counters["preaudit_failed"] += 1
+            _logger.error("drone %d: an audit failed", self.id, exc_info=exc)
 
     def _note_role(self) -> None:
         now = (str(self.node.role), self.node.term)
@@ -990,14 +996,10 @@ class DroneHost:
     def _close_step(self, k: int) -> None:
         """Step k closes for the censorship check (`Auditor.close_step`): a record of it that
         came before is judged now, and a finding deposes the leader."""
-        audit = self.drone.audit
-        if k in audit.closed:
+        if k in self.drone.audit.closed:
             return
-        audit.close_step(k)
-        term = audit.omission_term
-        why = audit.take_suspicion()
-        if why is not None:
-            self._censorship_found(why, term)
+        self.drone.audit.close_step(k)
+        self._take_suspicion()
 
     def _deadline(self, k: int) -> None:
         if self._late(k, self.sc.protocol.deadline_ms / 1000 + self.sc.dt_s):
@@ -1138,13 +1140,7 @@ class DroneHost:
                 self._preauditing = False
                 if self._stopping:
                     return  # the loop is closing: nothing more is stepped or audited
-                if fut.cancelled():
-                    self.counters["preaudit_failed"] += 1
-                elif (exc := fut.exception()) is not None:
-                    # the node's validator checks the record again (and refuses it if that
-                    # raises too: `Auditor.check`)
-                    self.counters["preaudit_failed"] += 1
-                    _logger.error("drone %d: an audit failed", self.id, exc_info=exc)
+                self._audit_failed(fut)  # the node's validator then checks it again
                 self._time("audit", t0)
                 held = self._held_apps.popleft()
                 self._push(lambda: self.node.step(held))
@@ -1162,36 +1158,39 @@ class DroneHost:
         """The Raft node's validator (its drone's `Auditor.validate`): a refused record and a
         censorship finding are counted and logged; a censorship finding starts a forced
         election (a refused record starts one in Raft). The simulator's `Mission._validate`."""
-        audit = self.drone.audit
-        n_refused = len(audit.refused)
-        t0 = time.perf_counter()
-        ok = audit.validate(entry)
-        self._time("validate", t0)  # the evidence computed ahead ("audit"): the rest
-        if not ok:
-            step, reason = audit.refused[n_refused]
-            self.counters["audit_refused"] += 1
-            self._event("audit_refused", step=step, term=entry.term, index=entry.index, reason=reason)
-            _logger.warning("drone %d: refused the record of step %d: %s", self.id, step, reason)
-        term = audit.omission_term
-        why = audit.take_suspicion()
-        if why is not None:
-            self._censorship_found(why, term)
+        ok = self._audited(self.drone.audit.validate, entry, entry.term, entry.index)
+        self._take_suspicion()
         return ok
 
     def _validate_snapshot(self, snap: Snapshot) -> bool:
         """The Raft node's validator of a leader's snapshot (`Auditor.validate_snapshot`; its
         records' checks computed ahead in the audit thread): a refusal is counted and logged."""
-        audit = self.drone.audit
-        n_refused = len(audit.refused)
+        return self._audited(self.drone.audit.validate_snapshot, snap, self.node.term, snap.index)
+
+    def _audited(self, check: Callable[[Any], bool], item: Entry | Snapshot, term: int, index: int) -> bool:
+        """``check(item)`` timed (the part the audit thread did not compute ahead); a
+        refusal counted, logged and an `audit_refused` event (step -1: a snapshot)."""
+        refused = self.drone.audit.refused
+        n_refused = len(refused)
         t0 = time.perf_counter()
-        ok = audit.validate_snapshot(snap)
-        self._time("validate", t0)
+        ok = check(item)
+        self._time("validate", t0)  # the evidence computed ahead ("audit"): the rest
         if not ok:
-            _, reason = audit.refused[n_refused]
+            step, reason = refused[n_refused]
             self.counters["audit_refused"] += 1
-            self._event("audit_refused", step=-1, term=self.node.term, index=snap.index, reason=reason)
-            _logger.warning("drone %d: refused its leader's snapshot: %s", self.id, reason)
+            self._event("audit_refused", step=step, term=term, index=index, reason=reason)
+            what = f"the record of step {step}" if step >= 0 else "its leader's snapshot"
+            _logger.warning("drone %d: refused %s: %s", self.id, what, reason)
         return ok
+
+    def _take_suspicion(self) -> None:
+        """A censorship finding of the audit (after a record, or a step's close) deposes the
+        leader of the term it was made in (`_censorship_found`)."""
+        audit = self.drone.audit
+        term = audit.omission_term
+        why = audit.take_suspicion()
+        if why is not None:
+            self._censorship_found(why, term)
 
     def _censorship_found(self, why: str, term: int) -> None:
         """The leader of ``term`` censors: deposed (`RaftNode.depose`) unless the term moved on

@@ -150,6 +150,10 @@ class Auditor:
         self._passed[record_digest(data)] = rec.term
         while len(self._passed) > 4 * KEEP_STEPS:
             self._passed.popitem(last=False)
+        self._see(rec)
+
+    def _see(self, rec: StepRecord) -> None:
+        """``rec`` held for its step (a prior of later records); steps long past forgotten."""
         self.seen.setdefault(rec.step, []).append(rec)
         for old in [s for s in self.seen if s < rec.step - KEEP_STEPS]:
             del self.seen[old]
@@ -164,9 +168,7 @@ class Auditor:
             rec = self.drone.decode(data)
         except Exception:  # noqa: BLE001 - any undecodable entry is simply not a prior
             return
-        self.seen.setdefault(rec.step, []).append(rec)
-        for old in [s for s in self.seen if s < rec.step - KEEP_STEPS]:
-            del self.seen[old]
+        self._see(rec)
 
     def proposed(self, data: bytes, rec: StepRecord) -> None:
         """This drone proposed ``rec`` as leader: it holds it (a prior of later records)."""
@@ -217,7 +219,9 @@ class Auditor:
         the snapshot must be its record for that step). A prior before the snapshot's
         oldest record is checked where this drone holds a record for that step: a drone
         that needs a snapshot is behind, and may hold none."""
+        n_refused = len(self.refused)
         reason = self._state_problem(snap.data)
+        del self.refused[n_refused:]  # a record's own refusal: said once, in the snapshot's
         if reason is not None:
             self._refuse(-1, f"snapshot at index {snap.index}: {reason}")
         return reason is None
@@ -250,8 +254,8 @@ class Auditor:
         self, data: bytes, term: int | None = None, prior_unknown_ok: bool = False
     ) -> tuple[StepRecord | None, str | None]:
         """The record in ``data`` and why it fails (None: it passes; it is then held).
-        ``prior_unknown_ok``: a prior this drone holds no record for is not refused (the
-        oldest record of a snapshot)."""
+        ``prior_unknown_ok``: a prior this drone holds no record for is not refused (a
+        snapshot's record whose prior is before the snapshot's oldest record)."""
         try:
             rec = self.drone.decode(data)
         except (ValueError, TypeError, IndexError) as exc:

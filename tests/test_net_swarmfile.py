@@ -81,7 +81,10 @@ def test_the_writer_produces_a_file_that_loads_back_the_same(tmp_path):
         (("out = ", "outt = "), "outt: unknown parameter"),
         (('key = "keys/drone-1.key"\n', ""), "drones.1.key: Field required"),
         (("start_unix_s = 1800000000.5", ""), "start_unix_s: Field required"),
-        (("tick_ms = 10", 'code_sha256 = "abc"\ntick_ms = 10'), "code_sha256: String should match pattern"),
+        (
+            ("tick_ms = 10", 'code_sha256 = "abc"\ntick_ms = 10'),
+            "code_sha256: 'abc' is not a SHA-256 (64 lowercase hex digits)",
+        ),
     ],
 )
 def test_a_bad_field_is_one_line_naming_it(tmp_path, change, field):

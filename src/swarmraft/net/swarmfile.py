@@ -146,7 +146,6 @@ class SwarmFile(_Strict):
     origin: GeodeticOrigin | None = Field(None, description="geodetic origin of the local ENU frame")
     code_sha256: str | None = Field(
         None,
-        pattern=r"^[0-9a-f]{64}$",
         description="SHA-256 of the swarmraft source files every drone must run (`swarmraft launch` "
         "writes the one it runs; a node with other code refuses to start); unset: not checked",
     )
@@ -156,6 +155,13 @@ class SwarmFile(_Strict):
     def _version(cls, v: int) -> int:
         if v != FORMAT_VERSION:
             raise ValueError(f"version {v}; this program reads version {FORMAT_VERSION}")
+        return v
+
+    @field_validator("code_sha256")
+    @classmethod
+    def _code(cls, v: str | None) -> str | None:
+        if v is not None and not re.fullmatch(r"[0-9a-f]{64}", v):
+            raise ValueError(f"{v!r} is not a SHA-256 (64 lowercase hex digits)")
         return v
 
     @model_validator(mode="after")

@@ -170,9 +170,12 @@ def clique_detector(batch: SnapshotBatch, p: CliqueParams) -> VerdictBatch:
         ks = np.arange(k, k + len(cs))
         k += len(cs)
         plausible = [j for j in ks if passed[j]]
-        if plausible:  # exclusion can make two candidates the same set: count it once
-            _, first = np.unique(masks[plausible], axis=0, return_index=True)
-            plausible = [plausible[i] for i in sorted(first)]
+        # exclusion can make two candidates the same set: count it once, where it first comes
+        # (a dict keeps that order; np.unique by rows took 60-120 us, 2 % of a step at n = 17)
+        first: dict[bytes, int] = {}
+        for j in plausible:
+            first.setdefault(masks[j].tobytes(), j)
+        plausible = list(first.values())
         if not cs or (capped[t] and not plausible):
             # more than f_max drones outside every clique (nothing to exclude), or the
             # enumeration stopped at max_cliques with no passing candidate among those seen

@@ -189,6 +189,76 @@ class FaultConfig(_Strict):
     for_s: float | None = Field(None, gt=0, description="pause: how long, s")
 
 
+#: the fields each kind of spoof uses (enlarge and tamper_ranges go with any kind)
+_SPOOF_FIELDS = {
+    "magnitude": ("jump", "area"),
+    "rate": ("drag",),
+    "angle_deg": ("collusion",),
+    "pivots": ("collusion",),
+}
+#: the fields each kind of fault uses (mode, offset_m and for_s are checked in `Scenario`)
+_FAULT_FIELDS = {
+    "drone": ("crash", "restart", "pause", "transfer-leader", "lying-leader", "join", "leave"),
+    "groups": ("partition",),
+    "value": ("loss",),
+}
+
+
+def _unused(model: BaseModel, uses: dict[str, tuple[str, ...]], kind: str, where: str) -> None:
+    """A one-line error for a field of ``model`` set to other than its default that its
+    ``kind`` does not use (it was ignored, so the scenario meant something other than it says)."""
+    for name, kinds in uses.items():
+        default = type(model).model_fields[name].get_default(call_default_factory=True)
+        # a default written out (a results folder's scenario.json has every field) is no claim
+        if kind not in kinds and getattr(model, name) != default:
+            noun = type(model).__name__.removesuffix("Config").lower()
+            raise ValueError(f"{where}.{name}: a {kind} {noun} does not use it (only {', '.join(kinds)})")
+
+
+def _check_spoof_fields(s: SpoofConfig, where: str) -> None:
+    _unused(s, _SPOOF_FIELDS, s.kind, where)
+
+
+def _check_fault_fields(f: FaultConfig, where: str) -> None:
+    _unused(f, _FAULT_FIELDS, f.kind, where)
+
+
+def _windows_meet(a0: float, a1: float | None, b0: float, b1: float | None) -> bool:
+    """Whether [a0, a1) and [b0, b1) share a moment (None: open to the mission's end)."""
+    return (a1 is None or b0 < a1) and (b1 is None or a0 < b1)
+
+
+def _span(start: float, end: float | None) -> str:
+    return f"from {start:g} s" + ("" if end is None else f" to {end:g} s")
+
+
+def _check_overlaps(spoofs: list[SpoofConfig], outages: list[OutageConfig]) -> None:
+    """No drone spoofed by two spoofs at once (the later one replaced the earlier, which was
+    still scored), and none spoofed while an outage leaves it without a GNSS fix (it reported
+    INS: nothing was spoofed, and the spoof was scored as missed). Jamming then spoofing is
+    an outage that ends when the spoof starts."""
+    for k, s in enumerate(spoofs):
+        for j in range(k):
+            t = spoofs[j]
+            if (both := sorted(set(s.drones) & set(t.drones))) and _windows_meet(
+                s.start_s, s.end_s, t.start_s, t.end_s
+            ):
+                raise ValueError(
+                    f"spoof[{k}].drones: drone {_ids(both)} is spoofed by spoof[{j}] "
+                    f"{_span(t.start_s, t.end_s)} already (one spoof of a drone at a time)"
+                )
+    for k, o in enumerate(outages):
+        for j, s in enumerate(spoofs):
+            if (both := sorted(set(o.drones) & set(s.drones))) and _windows_meet(
+                o.start_s, o.end_s, s.start_s, s.end_s
+            ):
+                raise ValueError(
+                    f"outage[{k}].drones: drone {_ids(both)} has no GNSS fix {_span(o.start_s, o.end_s)} "
+                    f"while spoof[{j}] spoofs it {_span(s.start_s, s.end_s)}: a drone without a fix "
+                    "has nothing to spoof (to jam, then spoof, end the outage as the spoof starts)"
+                )
+
+
 class Scenario(_Strict):
     name: str = Field("mission", pattern=NAME_PATTERN, description="names the output folder")
     seed: int = Field(1, ge=0)
@@ -213,11 +283,13 @@ class Scenario(_Strict):
             bad = [i for i in ids if not 1 <= i <= self.drones]
             if bad:
                 raise ValueError(f"{where}: drone ids must be in 1..{self.drones}, got {bad}")
+            if twice := sorted({i for i in ids if ids.count(i) > 1}):
+                raise ValueError(f"{where}: drone {_ids(twice)} twice")
 
-        def timed(start: float, end: float | None, where: str) -> None:
+        def timed(start: float, end: float | None, where: str, field: str = "start_s") -> None:
             if start >= self.duration_s:
                 raise ValueError(
-                    f"{where}.start_s: {start:g} s is not before the mission's end ({self.duration_s:g} s)"
+                    f"{where}.{field}: {start:g} s is not before the mission's end ({self.duration_s:g} s)"
                 )
             if end is not None and end <= start:
                 raise ValueError(f"{where}.end_s: {end:g} s is not after start_s = {start:g} s")
@@ -225,6 +297,11 @@ class Scenario(_Strict):
         if self.dt_s > self.duration_s:
             raise ValueError(
                 f"dt_s: a step of {self.dt_s:g} s is longer than the mission ({self.duration_s:g} s)"
+            )
+        if abs(self.duration_s / self.dt_s - self.steps) > 1e-6:
+            raise ValueError(
+                f"dt_s: {self.dt_s:g} s does not divide duration_s = {self.duration_s:g} s into whole "
+                "steps (the motion and the steps would not share one time grid)"
             )
         for k, s in enumerate(self.spoof):
             timed(s.start_s, s.end_s, f"spoof[{k}]")
@@ -236,14 +313,14 @@ class Scenario(_Strict):
                 )
             if s.kind == "collusion" and not 1 <= len(s.pivots) <= 3:
                 raise ValueError(f"spoof[{k}].pivots: collusion needs 1 to 3 pivot drones")
+            _check_spoof_fields(s, f"spoof[{k}]")
         for k, o in enumerate(self.outage):
             timed(o.start_s, o.end_s, f"outage[{k}]")
             check(o.drones, f"outage[{k}].drones")
+        _check_overlaps(self.spoof, self.outage)
         for k, f in enumerate(self.fault):
-            if f.at_s >= self.duration_s:
-                raise ValueError(
-                    f"fault[{k}].at_s: {f.at_s:g} s is not before the mission's end ({self.duration_s:g} s)"
-                )
+            timed(f.at_s, None, f"fault[{k}]", "at_s")
+            _check_fault_fields(f, f"fault[{k}]")
             if f.kind in ("crash", "restart", "lying-leader", "join", "leave") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
             if f.kind == "lying-leader" and f.mode is None:
@@ -261,6 +338,12 @@ class Scenario(_Strict):
                     raise ValueError(f"fault[{k}].groups: a partition needs groups")
                 for g in f.groups:
                     check(g, f"fault[{k}].groups")
+                members = [d for g in f.groups for d in g]
+                if twice := sorted({d for d in members if members.count(d) > 1}):
+                    raise ValueError(
+                        f"fault[{k}].groups: drone {_ids(twice)} is in two groups (it would bridge them: "
+                        "no partition)"
+                    )
             if f.kind == "loss" and f.value is None:
                 raise ValueError(f"fault[{k}].value: loss needs a value")
             if f.kind == "pause" and f.for_s is None:

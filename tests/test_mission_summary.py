@@ -194,6 +194,7 @@ def test_every_skipped_step_is_put_down_to_a_cause(small):
     s = summarize(log, error_series(log))
     assert s["skipped_steps"] == 5
     assert s["skipped_causes"] == {
+        "no_record": 0,
         "before_first_record": 2,
         "after_fault": 1,
         "unexplained": 2,

@@ -107,11 +107,23 @@ def print_mission_summary(summary: dict) -> None:
     unexplained = (
         f"[red]{sk['unexplained']} unexplained[/] (at {when})" if sk["unexplained"] else "0 unexplained"
     )
+    same = s["records_identical_on_all_nodes"]
     print_wrapped(
         f"committed {s['committed_steps']} steps, skipped {s['skipped_steps']} "
-        f"(longest run {s['longest_skipped_run']}: {sk['before_first_record']} before the first record, "
-        f"{sk['after_fault']} within {FAULT_SKIP_WINDOW_S:g} s after a fault, {unexplained}); "
-        f"records identical on all nodes: {'yes' if s['records_identical_on_all_nodes'] else '[red]NO[/]'}",
+        + (
+            f"([red]no record at all[/]: {sk['no_record']})"
+            if sk.get("no_record")
+            else f"(longest run {s['longest_skipped_run']}: {sk['before_first_record']} before the first "
+            f"record, {sk['after_fault']} within {FAULT_SKIP_WINDOW_S:g} s after a fault, {unexplained})"
+        )
+        + "; records identical on all nodes: "
+        + (
+            "yes"
+            if same
+            else "[red]NO[/]"
+            if same is not None
+            else "not judged (no record applied by two nodes)"
+        ),
         2,
     )
     ig = s["integrity"]
@@ -134,7 +146,11 @@ def print_mission_summary(summary: dict) -> None:
         f"honest drones: raw GNSS {_m(s['honest_error_gnss_m'])}, "
         f"SwarmRaft {_m(s['honest_error_swarmraft_m'])}, "
         f"snapshot bound {_m(s['honest_snapshot_bound_m'])}; "
-        f"honest drones flagged in {s['honest_false_positive_rate']:.2%} of their steps",
+        + (
+            f"honest drones flagged in {fp:.2%} of their steps"
+            if (fp := s["honest_false_positive_rate"]) is not None
+            else "honest drones flagged: not judged (no honest drone in a committed step)"
+        ),
         2,
     )
     hx = s["honest_worse_than_gnss"]

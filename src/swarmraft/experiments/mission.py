@@ -16,7 +16,7 @@ from swarmraft import __version__
 from swarmraft.estimation.bounds import gnss_covariance, swarm_crb
 from swarmraft.estimation.registry import one_line
 from swarmraft.experiments.config import ConfigError, read_toml
-from swarmraft.experiments.tables import write_rows
+from swarmraft.experiments.tables import write_rows, write_text
 from swarmraft.sim.mission import MissionLog, run_mission
 from swarmraft.sim.scenario import Scenario, find_scenario, shipped_scenarios
 from swarmraft.world.geometry import true_distances
@@ -243,9 +243,8 @@ def _spoof_detection(log: MissionLog, errors: dict[str, np.ndarray], k_sp: int, 
         "flagged_at_least_once": first is not None,
         "time_to_first_detection_s": after(first),
         "time_to_sustained_detection_s": after(sustained),
-        "reported_error_at_first_detection_m": None
-        if first is None
-        else round(float(errors["gnss"][first, i]), 3),
+        # None where there is no first detection, or no reported fix then (a drone with no GNSS)
+        "reported_error_at_first_detection_m": None if first is None else _stat(errors["gnss"][first, i]),
         "worst_error_m": _max(errors["swarmraft"][steps, i]),
         "mean_error_m": _stat(errors["swarmraft"][steps, i]),
         "mean_snapshot_bound_m": _stat(errors["snapshot_bound"][steps, i]),
@@ -288,19 +287,28 @@ FAULT_SKIP_WINDOW_S = 2.0
 
 
 def skipped_causes(log: MissionLog) -> dict[str, Any]:
-    """Each skipped step put down to one cause: before the first committed record (the first
-    election), from ``log.in_flight_s`` before an event of the mission (0 in the simulator)
-    to FAULT_SKIP_WINDOW_S after it, or neither: unexplained (the first 20 listed by time)."""
+    """Each skipped step put down to one cause: no record at all (a mission that committed
+    nothing), before the first committed record (the first election), from
+    ``log.in_flight_s`` before an event of the mission (0 in the simulator) to
+    FAULT_SKIP_WINDOW_S after it, or neither: unexplained (the first 20 listed by time)."""
     skipped = ~log.committed
     done = np.flatnonzero(log.committed)
-    first = done[0] if done.size else len(log.t)
-    before = skipped & (np.arange(len(log.t)) < first)
+    if not done.size:  # nothing committed: no first record to wait for, nothing to put down
+        return {
+            "no_record": int(skipped.sum()),
+            "before_first_record": 0,
+            "after_fault": 0,
+            "unexplained": 0,
+            "unexplained_times_s": [],
+        }
+    before = skipped & (np.arange(len(log.t)) < done[0])
     near = np.zeros(len(log.t), dtype=bool)
     for t, _ in log.events:
         near |= (log.t >= t - log.in_flight_s - 1e-9) & (log.t <= t + FAULT_SKIP_WINDOW_S + 1e-9)
     after = skipped & ~before & near
     other = skipped & ~before & ~after
     return {
+        "no_record": 0,
         "before_first_record": int(before.sum()),
         "after_fault": int(after.sum()),
         "unexplained": int(other.sum()),
@@ -400,7 +408,8 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
                 }
             )
     hon_mask = honest[None, :] & seen
-    fp = float(log.faulty[hon_mask].mean()) if hon_mask.any() else 0.0
+    # None (not judged) where no honest drone was judged: not 0, which read as "none flagged"
+    fp = round(float(log.faulty[hon_mask].mean()), 5) if hon_mask.any() else None
     raft_per = float(log.raft_messages[log.committed].mean()) if committed else float("nan")
     return {
         "scenario": sc.name,
@@ -417,13 +426,15 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "skipped_steps": S - committed,
         "longest_skipped_run": _runs(~log.committed),
         "skipped_causes": skipped_causes(log),
-        "records_identical_on_all_nodes": log.agreement.identical,
+        # None where no step's record was applied by two drones: nothing was compared
+        "records_identical_on_all_nodes": log.agreement.identical if log.agreement.checked else None,
+        "records_compared": log.agreement.checked,
         "bound_note": BOUND_NOTE,
         "sustained_detection_s": SUSTAIN_S,
         "honest_error_gnss_m": _stat(errors["gnss"][:, honest]),
         "honest_error_swarmraft_m": _stat(errors["swarmraft"][:, honest]),
         "honest_snapshot_bound_m": _stat(errors["snapshot_bound"][:, honest]),
-        "honest_false_positive_rate": round(fp, 5),
+        "honest_false_positive_rate": fp,
         "honest_worse_than_gnss": honest_excess(log, errors),
         "wrong_partition_step_count": len(wrong_steps),
         "wrong_partition_time_ranges_s": time_ranges(log.t, wrong),
@@ -439,6 +450,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "reports_per_step": round(float(log.report_messages.mean()), 2),
         "refused_proposals": log.refused_proposals,
         "events": [f"{t:.1f} s: {e}" for t, e in log.events],
+        "idle_faults": [f"{t:.1f} s: {e}" for t, e in log.idle_faults],
         "integrity": integrity_summary(log),
         # only with a lying-leader fault: the files of other missions stay as they were
         **({"audit": _rounded(log.audit)} if any(f.kind == "lying-leader" for f in sc.fault) else {}),
@@ -449,13 +461,20 @@ def _rounded(audit: dict) -> dict:
     return {k: round(v, 3) if isinstance(v, float) else v for k, v in audit.items()}
 
 
+def misleading_judged(log: MissionLog) -> np.ndarray:
+    """(S, n): where misleading information can be judged: a drone in the swarm, in a
+    committed record with status ok that gives it both protection levels."""
+    ok = (log.status == "ok")[:, None] & log.committed[:, None] & log.in_swarm()
+    return ok & ~np.isnan(log.hpl) & ~np.isnan(log.vpl)
+
+
 def misleading_information(log: MissionLog) -> np.ndarray:
     """(S, n): a committed record with status ok whose position of the drone is further from
     the truth than its protection level (horizontally or vertically)."""
     e = log.verified - log.truth
     with np.errstate(invalid="ignore"):
         over = (np.hypot(e[..., 0], e[..., 1]) > log.hpl) | (np.abs(e[..., 2]) > log.vpl)
-    return over & (log.status == "ok")[:, None] & log.committed[:, None] & log.in_swarm()
+    return over & misleading_judged(log)
 
 
 def integrity_summary(log: MissionLog) -> dict[str, Any]:
@@ -465,14 +484,16 @@ def integrity_summary(log: MissionLog) -> dict[str, Any]:
     ok = log.committed & (log.status == "ok")
     finite = np.isfinite(log.hpl) & ok[:, None]
     # no ok record with a protection level (`paper` gives none): misleading information is
-    # not judged, None, not 0
-    judged = bool((~np.isnan(log.hpl) & ok[:, None]).any())
+    # not judged, None, not 0; a drone an ok record gives no level is counted apart
+    judged = misleading_judged(log)
+    unlevelled = ok[:, None] & log.in_swarm() & ~judged
     return {
         "ok_steps": int(ok.sum()),
         "status_counts": {s: int((log.status == s).sum()) for s in sorted(set(log.status.tolist()))},
         "median_hpl_m": round(float(np.median(log.hpl[finite])), 3) if finite.any() else None,
         "median_vpl_m": round(float(np.median(log.vpl[finite])), 3) if finite.any() else None,
-        "misleading_drone_steps": int(mis.sum()) if judged else None,
+        "misleading_drone_steps": int(mis.sum()) if judged.any() else None,
+        "ok_drone_steps_without_level": int(unlevelled.sum()),
         "misleading_times_s": [round(float(t), 1) for t in log.t[mis.any(axis=1)][:20]],
     }
 
@@ -480,7 +501,8 @@ def integrity_summary(log: MissionLog) -> dict[str, Any]:
 def step_rows(log: MissionLog, errors: dict[str, np.ndarray]) -> Iterator[dict[str, Any]]:
     """steps.csv's rows (one per step and drone), one at a time: as a list they held about
     1.5 KB of Python objects a row (54 MB for 64 drones over 60 s)."""
-    misleading = misleading_information(log)
+    # nan where not judged (no ok record, or no level in it), as trials.csv has it
+    misleading = np.where(misleading_judged(log), misleading_information(log), np.nan)
     wrong = wrong_partition(log)
     member = log.member
     for k in range(len(log.t)):
@@ -546,8 +568,14 @@ def write_results(
     out.mkdir(parents=True, exist_ok=True)
     errors = error_series(log) if errors is None else errors
     summary = {**summarize(log, errors), **(extra or {})}
+    # strict JSON: a value that does not exist is null, never NaN (which parsers refuse); both
+    # texts made before any file is written, so a summary that cannot be written leaves the
+    # folder as it was, and each file is swapped in whole
+    texts = {
+        "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
+        "scenario.json": json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n",
+    }
     write_rows(out / "steps.csv", step_columns(log), step_rows(log, errors))
-    # strict JSON: a value that does not exist is null, never NaN (which parsers refuse)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
-    (out / "scenario.json").write_text(json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n")
+    for name, text in texts.items():
+        write_text(out / name, text)
     return MissionResult(log, errors, summary)

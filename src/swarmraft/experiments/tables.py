@@ -34,13 +34,18 @@ def write_rows(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, o
     os.replace(tmp, path)
 
 
-def write_json(path: Path, data: object) -> None:
-    """Write JSON atomically (temporary file, then rename), keys sorted."""
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically (temporary file, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    tmp.write_text(text)
     os.replace(tmp, path)
+
+
+def write_json(path: Path, data: object) -> None:
+    """Write JSON atomically (`write_text`), keys sorted."""
+    write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
 def write_columns(path: Path, data: Mapping[str, np.ndarray], columns: Sequence[str]) -> None:

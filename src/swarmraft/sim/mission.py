@@ -62,6 +62,8 @@ class MissionLog:
     # every record each drone applied, checked for identical digests per step (bounded)
     agreement: RecordAgreement = field(default_factory=RecordAgreement)
     events: list[tuple[float, str]] = field(default_factory=list)
+    # faults that found nothing to do (a restart of a drone that is up): said, not events
+    idle_faults: list[tuple[float, str]] = field(default_factory=list)
     ins_sigma_window: float = 0.0
     detector_params: dict = field(default_factory=dict)  # as used (calibrated thresholds included)
     audit: dict = field(default_factory=dict)  # the audit's counts (`Mission.audit_summary`)
@@ -88,6 +90,7 @@ class MissionLog:
                 cut[f.name] = v[:k].copy()
         end = float(self.t[k - 1]) if k else -np.inf
         cut["events"] = [(t, what) for t, what in self.events if t <= end + 1e-9]
+        cut["idle_faults"] = [(t, what) for t, what in self.idle_faults if t <= end + 1e-9]
         return replace(self, **cut)
 
 
@@ -432,7 +435,7 @@ class Mission:
                 if node.lead_transferee is not None:
                     return
                 if any(v != lead and v not in self._leaving and c.alive(v) for v in conf.voters):
-                    self.log.events.append((now / 1000, self._transfer(None, leaving=True)))
+                    self.log.events.append((now / 1000, self._transfer(None, leaving=True)[0]))
                     return
         caught_up = [lr for lr in conf.learners if lr in node.prs and node.prs[lr].match + gap >= last]
         silent = {i: (now - t) / 1000 for i, t in self._heard.items()}
@@ -588,24 +591,34 @@ class Mission:
     def _fault(self, f) -> None:  # noqa: ANN001 (a FaultConfig)
         c = self.cluster
         now = c.now / 1000
+        # a fault that finds nothing to do is said (idle_faults), not an event: an event
+        # excuses the skipped steps after it (`experiments.mission.skipped_causes`)
+        idle = self.log.idle_faults
         if f.kind == "crash":
             if c.alive(f.drone):
                 c.crash(f.drone)
                 self.drones[f.drone - 1] = self._new_drone(f.drone - 1)  # volatile state lost
-            self.log.events.append((now, f"drone {f.drone} crashed"))
+                self.log.events.append((now, f"drone {f.drone} crashed"))
+            else:
+                idle.append((now, f"crash: drone {f.drone} is down already, nothing done"))
         elif f.kind == "crash-leader":
             lead = c.leader()
             if lead is not None:
                 c.crash(lead)
                 self.drones[lead - 1] = self._new_drone(lead - 1)
-            self.log.events.append((now, f"leader {lead} crashed"))
+                self.log.events.append((now, f"leader {lead} crashed"))
+            else:
+                idle.append((now, "crash-leader: no leader, nothing crashed"))
         elif f.kind == "transfer-leader":
-            self.log.events.append((now, self._transfer(f.drone)))
+            what, acted = self._transfer(f.drone)
+            (self.log.events if acted else idle).append((now, what))
         elif f.kind == "restart":
             if not c.alive(f.drone):
                 c.restart(f.drone)
                 self._reread_log(f.drone)
-            self.log.events.append((now, f"drone {f.drone} restarted"))
+                self.log.events.append((now, f"drone {f.drone} restarted"))
+            else:
+                idle.append((now, f"restart: drone {f.drone} is up, nothing done"))
         elif f.kind == "pause":
             who = [f.drone] if f.drone is not None else list(c.ids)
             for d in who:
@@ -639,14 +652,15 @@ class Mission:
             c.set_loss(f.value)
             self.log.events.append((now, f"loss set to {f.value:.0%}"))
 
-    def _transfer(self, to: int | None, leaving: bool = False) -> str:
+    def _transfer(self, to: int | None, leaving: bool = False) -> tuple[str, bool]:
         """The leader hands over to drone ``to``, or (None) to the voter whose log is the most
         complete (highest match index; the lowest id on a tie) and that stays in the swarm.
-        Returns the event's text (``leaving``: the leader leaves the swarm)."""
+        Returns the event's text (``leaving``: the leader leaves the swarm) and whether a
+        transfer began (False: nothing done, and the text says why)."""
         c = self.cluster
         lead = c.leader()
         if lead is None:
-            return "transfer-leader: no leader, nothing handed over"
+            return "transfer-leader: no leader, nothing handed over", False
         node = c.nodes[lead]
         assert node is not None
         if to is None:
@@ -654,14 +668,14 @@ class Mission:
             if leaving:  # hand over to a drone that can take it
                 others = [v for v in others if c.alive(v)]
             if not others:
-                return f"transfer-leader: leader {lead} is the only voter"
+                return f"transfer-leader: leader {lead} is the only voter", False
             to = max(others, key=lambda v: (node.prs[v].match, -v))
         if to == lead:
-            return f"transfer-leader: drone {to} leads already"
+            return f"transfer-leader: drone {to} leads already", False
         if not c.alive(to):
-            return f"transfer-leader: drone {to} is down, leader {lead} keeps leading"
+            return f"transfer-leader: drone {to} is down, leader {lead} keeps leading", False
         c.transfer_leader(to)
-        return f"leader {lead} hands over to drone {to}" + (" (it leaves the swarm)" if leaving else "")
+        return f"leader {lead} hands over to drone {to}" + (" (it leaves the swarm)" if leaving else ""), True
 
     # -- running ----------------------------------------------------------------------------
     def run(self, progress: Callable[[int], None] | None = None) -> MissionLog:

@@ -251,8 +251,13 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a reader must see first about a mission: (level, text), level fail, warn or ok."""
     s = summary
     out: list[tuple[str, str]] = []
-    if s.get("records_identical_on_all_nodes"):
+    if s.get("committed_steps") == 0:
+        out.append(("fail", f"no step committed: the mission verified nothing (0 of {s.get('steps')} steps)"))
+    same = s.get("records_identical_on_all_nodes")
+    if same:
         out.append(("ok", "records identical on every node that applied them"))
+    elif same is None:
+        out.append(("warn", "records not compared: no step's record was applied by two nodes"))
     else:
         out.append(("fail", "records DIFFER between nodes for some step"))
     for w in s.get("warnings", []):
@@ -286,6 +291,8 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
         out.append(("warn", "misleading information not judged: no ok record has a protection level"))
     else:
         out.append(("ok", "no misleading information (every ok record within its protection levels)"))
+    if unlevelled := ig.get("ok_drone_steps_without_level"):
+        out.append(("warn", f"{unlevelled} drone-steps of ok records have no protection level: not judged"))
     for d in s.get("detections", []):
         who = f"{d['kind']} on drone {d['drone']} from {d['start_s']:g} s"
         if not d.get("flagged_at_least_once"):
@@ -303,7 +310,9 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
                 )
             )
     skipped = s.get("skipped_steps", 0)
-    if skipped:
+    if s.get("committed_steps") == 0:
+        pass  # said first, as a failure
+    elif skipped:
         sk = s.get("skipped_causes")  # summaries written before it have none
         why = (
             f": {sk['before_first_record']} before the first record, {sk['after_fault']} soon after "
@@ -320,8 +329,10 @@ def mission_checks(summary: Mapping[str, Any]) -> list[tuple[str, str]]:
         )
     else:
         out.append(("ok", "every step committed"))
-    fp = s.get("honest_false_positive_rate") or 0
-    if fp:
+    fp = s.get("honest_false_positive_rate")
+    if fp is None:
+        out.append(("warn", "honest drones' flags not judged: no honest drone in a committed step"))
+    elif fp:
         out.append(("warn", f"honest drones flagged in {fp:.2%} of their judged steps"))
     else:
         out.append(("ok", "no honest drone flagged"))
@@ -367,6 +378,7 @@ MISSION_FIELDS = (
     ("skipped_steps", "skipped steps"),
     ("longest_skipped_run", "longest run of skipped steps"),
     ("records_identical_on_all_nodes", "records identical on all nodes"),
+    ("records_compared", "records compared between nodes"),
     ("wrong_partition_step_count", "wrong-partition steps"),
     ("honest_error_gnss_m", "honest drones: raw GNSS error, m"),
     ("honest_error_swarmraft_m", "honest drones: SwarmRaft error, m"),
@@ -385,6 +397,7 @@ INTEGRITY_FIELDS = (
     ("median_hpl_m", "median horizontal protection level (ok records), m"),
     ("median_vpl_m", "median vertical protection level (ok records), m"),
     ("misleading_drone_steps", "misleading drone-steps (error above level, status ok)"),
+    ("ok_drone_steps_without_level", "drone-steps of ok records without a level (not judged)"),
     ("misleading_times_s", "first times with misleading information, s"),
 )
 DETECTION_COLUMNS = (

@@ -1,0 +1,116 @@
+"""A mission's summary claims only what it checked: nothing committed is not "no honest drone
+flagged", a drone with no protection level is not "within its level", a value that does not
+exist is null, and a results folder is never left half old, half new (found by a review)."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+from swarmraft.experiments.mission import error_series, summarize, write_results
+from swarmraft.sim.mission import run_mission
+from swarmraft.sim.scenario import Scenario
+from swarmraft.viz.report import mission_checks
+
+
+@pytest.fixture(scope="module")
+def spoofed():
+    sc = Scenario(drones=7, duration_s=3, seed=3, spoof=[{"kind": "jump", "drones": [3], "start_s": 1}])
+    return run_mission(sc)
+
+
+def test_a_first_detection_without_a_gnss_error_is_null_not_a_crash(spoofed):
+    errors = error_series(spoofed)
+    (d,) = summarize(spoofed, errors)["detections"]
+    assert d["flagged_at_least_once"]
+    first = int(round((d["start_s"] + d["time_to_first_detection_s"]) / spoofed.scenario.dt_s))
+    errors["gnss"][first, 2] = np.nan  # no fix at that step: no reported error to give
+    summary = summarize(spoofed, errors)
+    assert summary["detections"][0]["reported_error_at_first_detection_m"] is None
+    json.dumps(summary, allow_nan=False)
+
+
+def test_a_summary_that_cannot_be_written_leaves_the_folder_as_it_was(spoofed, tmp_path):
+    write_results(run_mission(Scenario(drones=5, duration_s=1, seed=1)), tmp_path)  # another mission
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert set(before) == {"steps.csv", "summary.json", "scenario.json"}
+    with pytest.raises(ValueError, match="JSON"):
+        write_results(spoofed, tmp_path, extra={"broken": float("nan")})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_a_mission_that_commits_nothing_claims_nothing(tmp_path):
+    f = tmp_path / "lost.toml"
+    f.write_text(
+        'name = "lost"\ndrones = 5\nduration_s = 2\n[network]\nloss = 1.0\n'
+        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 0.5\n'
+    )
+    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["committed_steps"] == 0
+    assert s["honest_false_positive_rate"] is None  # no honest drone was judged
+    assert s["records_identical_on_all_nodes"] is None and s["records_compared"] == 0
+    causes = s["skipped_causes"]
+    assert causes["no_record"] == s["steps"] == 21 and causes["before_first_record"] == 0
+    out = " ".join(res.output.split())
+    assert "records identical on all nodes: not judged" in out
+    assert "honest drones flagged: not judged" in out
+    checks = mission_checks(s)
+    assert ("fail", "no step committed: the mission verified nothing (0 of 21 steps)") in checks
+    assert not any(level == "ok" and "identical" in text for level, text in checks)
+    assert not any(level == "ok" and "no honest drone flagged" in text for level, text in checks)
+
+
+def test_an_ok_record_without_a_level_is_not_judged_within_it(spoofed, tmp_path):
+    log = spoofed
+    ok = log.committed & (log.status == "ok")
+    k = int(np.flatnonzero(ok)[-1])
+    kept = log.hpl[k, 0], log.vpl[k, 0], log.verified[k, 0].copy()
+    log.hpl[k, 0] = log.vpl[k, 0] = np.nan  # a drone the record gives no level
+    log.verified[k, 0] = log.truth[k, 0] + 100.0  # and far off: nothing says it is within
+    try:
+        result = write_results(log, tmp_path)
+    finally:
+        log.hpl[k, 0], log.vpl[k, 0], log.verified[k, 0] = kept
+    ig = result.summary["integrity"]
+    assert ig["misleading_drone_steps"] == 0
+    assert ig["ok_drone_steps_without_level"] == 1
+    checks = mission_checks(result.summary)
+    assert ("warn", "1 drone-steps of ok records have no protection level: not judged") in checks
+    rows = (tmp_path / "steps.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    col, step, drone = header.index("misleading"), header.index("step"), header.index("drone")
+    cells = {(int(r.split(",")[step]), int(r.split(",")[drone])): r.split(",")[col] for r in rows[1:]}
+    assert cells[(k, 1)] == "nan"  # not judged, not 0
+    assert cells[(k, 2)] == "0"
+    skipped = np.flatnonzero(~log.committed)
+    assert all(cells[(int(j), 1)] == "nan" for j in skipped)  # no record: nothing to judge
+
+
+def test_a_fault_that_finds_nothing_to_do_is_not_an_event_and_excuses_no_skipped_step():
+    """A restart of a drone that is up, a crash of one that is down, a leader crash with no
+    leader did nothing, yet were listed as events and excused the skipped steps after them."""
+    from swarmraft.experiments.mission import skipped_causes
+
+    sc = Scenario(
+        drones=5,
+        duration_s=3,
+        seed=2,
+        fault=[
+            {"kind": "restart", "at_s": 1.0, "drone": 3},
+            {"kind": "crash", "at_s": 1.5, "drone": 4},
+            {"kind": "crash", "at_s": 2.0, "drone": 4},
+        ],
+    )
+    log = run_mission(sc)
+    summary = summarize(log, error_series(log))
+    assert summary["events"] == ["1.5 s: drone 4 crashed"]
+    assert summary["idle_faults"] == [
+        "1.0 s: restart: drone 3 is up, nothing done",
+        "2.0 s: crash: drone 4 is down already, nothing done",
+    ]
+    log.committed[12] = False  # a step skipped 0.2 s after the idle restart
+    assert skipped_causes(log)["unexplained_times_s"] == [1.2]

@@ -41,6 +41,7 @@ def main() -> None:
         data["duration_s"] = a.duration
         for key, t in (("spoof", "start_s"), ("outage", "start_s"), ("fault", "at_s")):
             data[key] = [x for x in data.get(key, []) if x[t] < a.duration]
+        data["maps_at_s"] = [t for t in data.get("maps_at_s", []) if t <= a.duration]  # maps draw nothing
     t0 = time.time()
     log = run_mission(Scenario(**data))
     h = hashlib.sha256()

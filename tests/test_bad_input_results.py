@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from swarmraft.cli import main
-from test_bad_input import fails_cleanly
+from test_bad_input import cwd, fails_cleanly  # noqa: F401 (cwd: a fixture)
 
 SWEEP = ["sweep", "--n", "3,5", "--diagonal", "--trials", "50", "--workers", "1"]
 
@@ -301,3 +301,20 @@ def test_check_on_a_mission_or_comparison_folder_says_what_it_is(tmp_path, monke
     fails_cleanly(
         ["check", "c"], "c: a compare folder, not a sweep's (no cells.csv) (its sweeps are in", tmp_path
     )
+
+
+@pytest.mark.parametrize(
+    ("extra", "said"),
+    [
+        (["--attack", "range-bias"], "attack.name is 'range-bias' (the paper's: 'jump')"),
+        (["--detector", "clique"], "detector is 'clique' (the paper's: 'paper')"),
+        (["--param", "tau=0.3"], "detector_params is {'tau': 0.3} (the paper's: {})"),
+    ],
+)
+def test_check_refuses_a_reference_sweep_that_is_not_the_papers_experiment(cwd, extra, said):
+    """`check` graded any sweep of the reference preset against the paper's numbers, whatever
+    its attack, detector or parameters: a range-bias sweep 'passed' (a review found it)."""
+    r = CliRunner().invoke(main, [*SWEEP, *extra, "--out", "other"])
+    assert r.exit_code == 0, r.output
+    line = fails_cleanly(["check", "other"], "other: not the paper's experiment: ", cwd)
+    assert said in line

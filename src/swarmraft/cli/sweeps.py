@@ -324,7 +324,13 @@ def check(results, as_json) -> None:
     Passes when every recovered mean is within 3 standard errors of the published one and
     every baseline within 0.3 m; exits 1 otherwise.
     """
-    from swarmraft.experiments.published import MAX_BASELINE_GAP, MAX_Z, PUBLISHED, compare_published
+    from swarmraft.experiments.published import (
+        MAX_BASELINE_GAP,
+        MAX_Z,
+        PUBLISHED,
+        compare_published,
+        not_the_papers,
+    )
     from swarmraft.experiments.sweep import load_results
 
     cells, _, run = load_results(Path(results))
@@ -333,6 +339,8 @@ def check(results, as_json) -> None:
         raise ValueError(
             f"{results}: the published numbers are for --preset reference, this folder is {preset!r}"
         )
+    if differ := not_the_papers(run["config"]):
+        raise ValueError(f"{results}: not the paper's experiment: {'; '.join(differ)}")
     rows = compare_published(cells)
     if not rows:
         raise ValueError(f"{results}: no cell with n = 2f+1 for f = 1..8 to compare")

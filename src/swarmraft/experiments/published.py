@@ -49,3 +49,32 @@ def compare_published(cells: Mapping[str, np.ndarray]) -> list[dict[str, object]
             }
         )
     return rows
+
+
+#: what a reference sweep may change and still be the paper's experiment: which cells, how
+#: many trials, the seed, and how the work is cut
+_FREE = ("n", "f", "diagonal", "trials", "seed", "chunk_size", "calibration_trials")
+
+
+def not_the_papers(config: dict) -> list[str]:
+    """How a sweep's config (run.json's ``config``) differs from the paper's experiment (the
+    reference preset with its defaults), as ``key is X (the paper's: Y)``; [] if it does not.
+    Its published numbers grade only that experiment: another attack, detector or parameter
+    would be graded against numbers it was never meant to reproduce."""
+    from swarmraft.experiments.config import build_config
+
+    papers = build_config("reference").model_dump(mode="json")
+    out = []
+    for key, want in papers.items():
+        if key in _FREE:
+            continue
+        have = config.get(key)
+        if isinstance(want, dict) and isinstance(have, dict) and set(have) == set(want):
+            out += [
+                f"{key}.{k} is {have.get(k)!r} (the paper's: {v!r})"
+                for k, v in want.items()
+                if have.get(k) != v
+            ]
+        elif have != want:
+            out.append(f"{key} is {have!r} (the paper's: {want!r})")
+    return out

@@ -177,9 +177,13 @@ def test_honest_error_is_reported_after_each_fault(small):
     assert a["event"] == "drone 6 crashed" and a["from_s"] == 4.0
     honest = [0, 1, 3, 4, 6]  # drone 6 is honest but dead after the crash: not counted
     rows = slice(40, len(log.t))
-    vals = errors["swarmraft"][rows][:, honest][log.alive[rows][:, honest]]
-    assert a["honest_error_swarmraft_m"] == pytest.approx(np.nanmean(vals), abs=1e-3)
-    assert a["honest_error_gnss_m"] is not None
+    sw, gn = errors["swarmraft"][rows][:, honest], errors["gnss"][rows][:, honest]
+    # both means over the same cells: alive, committed, with a position and a fix (drone 5's
+    # outage until 6 s has no raw GNSS to compare with)
+    both = log.alive[rows][:, honest] & log.committed[rows][:, None] & np.isfinite(sw) & np.isfinite(gn)
+    assert 0 < both.sum() < log.alive[rows][:, honest].sum()
+    assert a["honest_error_swarmraft_m"] == pytest.approx(sw[both].mean(), abs=1e-3)
+    assert a["honest_error_gnss_m"] == pytest.approx(gn[both].mean(), abs=1e-3)
 
 
 def test_every_skipped_step_is_put_down_to_a_cause(small):

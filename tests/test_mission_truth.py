@@ -114,3 +114,30 @@ def test_a_fault_that_finds_nothing_to_do_is_not_an_event_and_excuses_no_skipped
     ]
     log.committed[12] = False  # a step skipped 0.2 s after the idle restart
     assert skipped_causes(log)["unexplained_times_s"] == [1.2]
+
+
+def test_honest_drones_are_compared_with_raw_gnss_over_the_same_steps_and_drones(spoofed):
+    """SwarmRaft's honest error was a mean over committed steps, raw GNSS's over every step,
+    skipped ones too; per step, SwarmRaft's over the drones a record placed, GNSS's over all:
+    the two means of a comparison now cover the same (step, drone) cells."""
+    from swarmraft.experiments.mission import honest_excess
+
+    log = spoofed
+    errors = error_series(log)
+    honest = ~log.spoofed.any(axis=0)
+    k = int(np.flatnonzero(log.committed)[5])
+    first, others = np.flatnonzero(honest)[0], np.flatnonzero(honest)[1:]
+    errors["swarmraft"][k, others] = np.nan  # the record placed one honest drone
+    errors["gnss"][k, others] = 10.0  # (the others' raw GNSS poor)
+    errors["swarmraft"][k, first] = errors["gnss"][k, first] + 0.5  # worse than its raw GNSS
+    errors["swarmraft"][k + 1] = np.nan  # and none at the next step
+    s = summarize(log, errors)
+    sw, gn = errors["swarmraft"][:, honest], errors["gnss"][:, honest]
+    both = np.isfinite(sw) & np.isfinite(gn) & (log.alive & log.in_swarm())[:, honest]
+    both &= log.committed[:, None]
+    assert s["honest_error_gnss_m"] == pytest.approx(gn[both].mean(), abs=1e-3)
+    assert s["honest_error_swarmraft_m"] == pytest.approx(sw[both].mean(), abs=1e-3)
+    assert s["honest_cells_compared"] == int(both.sum())
+    # step k: that drone against its own raw GNSS (worse), not against every honest drone's
+    worse = honest_excess(log, errors)
+    assert any(a <= log.t[k] + 1e-9 and log.t[k] <= b + 1e-9 for a, b in worse["time_ranges_s"])

@@ -316,24 +316,33 @@ def skipped_causes(log: MissionLog) -> dict[str, Any]:
     }
 
 
+def honest_cells(log: MissionLog, errors: dict[str, np.ndarray]) -> np.ndarray:
+    """(S, n): the (step, drone) cells over which the honest drones' SwarmRaft error is
+    compared with their raw GNSS error: a drone never spoofed, alive and in the swarm, at a
+    committed step, with both errors (a committed position and a fix). Both means of a
+    comparison are taken over these cells, never each over its own."""
+    honest = ~log.spoofed.any(axis=0)
+    up = log.alive & log.in_swarm() & log.committed[:, None] & honest[None, :]
+    return up & np.isfinite(errors["swarmraft"]) & np.isfinite(errors["gnss"])
+
+
 def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndarray) -> list[dict[str, Any]]:
     """Per fault event, from it to the next one (or the mission's end): the honest drones'
     SwarmRaft error against their raw GNSS, skipped and wrong-partition steps."""
-    honest = ~log.spoofed.any(axis=0)
+    cells = honest_cells(log, errors)
     S = len(log.t)
     times = [t for t, _ in log.events] + [float(log.t[-1]) + log.scenario.dt_s]
     out = []
     for (t0, what), t1 in zip(log.events, times[1:], strict=True):
         k0, k1 = _step_of(log.scenario, t0, S), _step_of(log.scenario, t1, S)
         rows = slice(k0, k1)
-        alive = (log.alive & log.in_swarm())[rows][:, honest]
         out.append(
             {
                 "event": what,
                 "from_s": round(t0, 3),
                 "to_s": round(min(t1, float(log.t[-1])), 3),
-                "honest_error_swarmraft_m": _stat(errors["swarmraft"][rows][:, honest][alive]),
-                "honest_error_gnss_m": _stat(errors["gnss"][rows][:, honest][alive]),
+                "honest_error_swarmraft_m": _stat(errors["swarmraft"][rows][cells[rows]]),
+                "honest_error_gnss_m": _stat(errors["gnss"][rows][cells[rows]]),
                 "skipped_steps": int((~log.committed[rows]).sum()),
                 "wrong_partition_steps": int(wrong[rows].sum()),
             }
@@ -343,13 +352,12 @@ def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndar
 
 def honest_excess(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
     """The steps in which SwarmRaft leaves the honest drones worse off than raw GNSS: their
-    mean committed error above their mean raw GNSS error (drones never spoofed, alive and in
-    the swarm; steps with a record). The target: never for more than 1 s running."""
-    honest = ~log.spoofed.any(axis=0)
-    up = (log.alive & log.in_swarm())[:, honest] & log.committed[:, None]
-    sw = np.where(up, errors["swarmraft"][:, honest], np.nan)
-    gn = np.where(up, errors["gnss"][:, honest], np.nan)
-    have = np.isfinite(sw).any(axis=1) & np.isfinite(gn).any(axis=1)
+    mean committed error above their mean raw GNSS error, over the same drones
+    (`honest_cells`). The target: never for more than 1 s running."""
+    cells = honest_cells(log, errors)
+    sw = np.where(cells, errors["swarmraft"], np.nan)
+    gn = np.where(cells, errors["gnss"], np.nan)
+    have = cells.any(axis=1)
     worse = np.zeros(len(log.t), bool)
     worse[have] = np.nanmean(sw[have], axis=1) > np.nanmean(gn[have], axis=1)
     return {
@@ -377,6 +385,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
     ]
     wrong = wrong_partition(log)
     seen = judged(log)
+    cells = honest_cells(log, errors)
     wrong_steps = [
         {
             "step": int(k),
@@ -431,8 +440,10 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "records_compared": log.agreement.checked,
         "bound_note": BOUND_NOTE,
         "sustained_detection_s": SUSTAIN_S,
-        "honest_error_gnss_m": _stat(errors["gnss"][:, honest]),
-        "honest_error_swarmraft_m": _stat(errors["swarmraft"][:, honest]),
+        # over the same cells (`honest_cells`): committed steps, drones with both errors
+        "honest_error_gnss_m": _stat(errors["gnss"][cells]),
+        "honest_error_swarmraft_m": _stat(errors["swarmraft"][cells]),
+        "honest_cells_compared": int(cells.sum()),
         "honest_snapshot_bound_m": _stat(errors["snapshot_bound"][:, honest]),
         "honest_false_positive_rate": fp,
         "honest_worse_than_gnss": honest_excess(log, errors),

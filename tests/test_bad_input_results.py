@@ -9,9 +9,16 @@ import pytest
 from click.testing import CliRunner
 
 from swarmraft.cli import main
-from test_bad_input import cwd, fails_cleanly  # noqa: F401 (cwd: a fixture)
+from test_bad_input import fails_cleanly
 
 SWEEP = ["sweep", "--n", "3,5", "--diagonal", "--trials", "50", "--workers", "1"]
+
+
+@pytest.fixture
+def cwd(tmp_path, monkeypatch):
+    """An empty working folder for the test."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
 
 
 @pytest.fixture(scope="module")
@@ -318,3 +325,31 @@ def test_check_refuses_a_reference_sweep_that_is_not_the_papers_experiment(cwd, 
     assert r.exit_code == 0, r.output
     line = fails_cleanly(["check", "other"], "other: not the paper's experiment: ", cwd)
     assert said in line
+
+
+def test_a_mission_refuses_another_kind_of_results_folder(ref):
+    """A mission's files beside a sweep's made the folder neither: the sweep could not be
+    resumed or drawn, and `report` showed the mission alone (found by a new-user review)."""
+    (ref.parent / "tiny.toml").write_text('name = "tiny"\ndrones = 5\nduration_s = 1\n')
+    line = fails_cleanly(
+        ["mission", "--scenario", "tiny.toml", "--out", "ref"], "--out ref is a sweep folder", ref.parent
+    )
+    assert "a mission writes a folder of its own" in line
+
+
+def test_a_mission_run_again_leaves_no_figure_or_report_of_the_run_before(cwd):
+    """Figures and the report drawn from a mission folder described that run; a new run into
+    the folder (another seed, the default results/NAME) left them, and `report` embedded the
+    old animation under the new mission's title."""
+    (cwd / "tiny.toml").write_text('name = "tiny"\ndrones = 5\nduration_s = 1\n')
+    run = ["mission", "--scenario", "tiny.toml", "--out", "m"]
+    assert CliRunner().invoke(main, run).exit_code == 0
+    (cwd / "m" / "figures" / "animation.gif").write_bytes(b"GIF89a old run")
+    (cwd / "m" / "report.html").write_text("<html>old run</html>")
+    (cwd / "notes.txt").write_text("mine")
+    r = CliRunner().invoke(main, [*run, "--seed", "2"])
+    assert r.exit_code == 0, r.output
+    assert not (cwd / "m" / "figures" / "animation.gif").exists()
+    assert not (cwd / "m" / "report.html").exists()
+    assert len(list((cwd / "m" / "figures").glob("*.png"))) == 4
+    assert (cwd / "notes.txt").read_text() == "mine"

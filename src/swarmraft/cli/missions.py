@@ -293,6 +293,9 @@ def mission(
 
         sc = with_detector(sc, detector)
     out = out or Path("results") / sc.name
+    from swarmraft.experiments.results_folder import require_own
+
+    require_own(out, "mission", "a mission")
     say = err_console if as_json else console
     session = on_step = None
     if live or record_to:

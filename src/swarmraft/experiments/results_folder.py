@@ -63,3 +63,17 @@ def require_kind(path: str | Path, wanted: tuple[str, ...], option: str, use: st
     inside = sorted(p.name for p in path.iterdir() if folder_kind(p) in wanted)
     hint = f"; these subfolders are: {', '.join(inside)}" if inside else ""
     raise ConfigError(f"{option}: {path} is not a results folder: {use} needs {needs}{hint}")
+
+
+def forget_derived(out: str | Path) -> None:
+    """Before a mission (or a networked run) writes into ``out``: if ``out`` is a mission
+    folder already, remove what was drawn from its last run (``figures/``, ``report.html``),
+    so that no figure, animation or report of another run is left beside the new data (a
+    report embedded every figure in the folder). A folder that is no mission's is not touched."""
+    import shutil
+
+    out = Path(out)
+    if folder_kind(out) not in ("mission", "launch"):
+        return
+    shutil.rmtree(out / "figures", ignore_errors=True)
+    (out / "report.html").unlink(missing_ok=True)

@@ -141,3 +141,29 @@ def test_honest_drones_are_compared_with_raw_gnss_over_the_same_steps_and_drones
     # step k: that drone against its own raw GNSS (worse), not against every honest drone's
     worse = honest_excess(log, errors)
     assert any(a <= log.t[k] + 1e-9 and log.t[k] <= b + 1e-9 for a, b in worse["time_ranges_s"])
+
+
+def test_a_record_that_verified_no_drone_is_carried_on_neither_as_prior_nor_as_ins_alignment():
+    """The leader crashes; the next leader is the spoofed drone 2, and its first record holds
+    its own report alone: `degenerate`, no drone verified (every level inf or nan), drone 2 at
+    its spoofed fix, unflagged. Taken as the next steps' prior and aligning drone 2's INS
+    track to it, that record made the `alarm` records after it commit drone 2 30 m off for
+    0.4 s (found by a review). A record that verified nothing carries nothing on."""
+    sc = Scenario(
+        drones=7,
+        duration_s=6,
+        seed=3,
+        spoof=[{"kind": "jump", "drones": [2], "start_s": 2}],
+        fault=[{"kind": "crash-leader", "at_s": 4}],
+    )
+    log = run_mission(sc)
+    errors = error_series(log)
+    lone = [k for k in range(len(log.t)) if log.t[k] > 4 and log.committed[k] and log.missing[k].sum() == 6]
+    assert lone, "the scenario no longer has a record of one report after the crash: find another"
+    k = lone[0]
+    # that record says what it is: nothing verified, drone 2 not protected
+    assert log.status[k] == "degenerate" and np.isinf(log.hpl[k, 1]) and not np.isfinite(log.hpl[k]).any()
+    after = np.arange(k + 1, len(log.t))
+    placed = log.committed[after][:, None] & np.isfinite(errors["swarmraft"][after])
+    off = placed[:, 1] & (errors["swarmraft"][after, 1] > 10.0) & ~log.faulty[after, 1]
+    assert not off.any(), log.t[after][off]

@@ -41,9 +41,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from swarmraft.protocol.drone import PRIOR_STEPS, UNSETTLED, Prior, memo_compute
+from swarmraft.protocol.drone import PRIOR_STEPS, Prior, memo_compute
 from swarmraft.protocol.memo import record_digest
-from swarmraft.protocol.records import Report, StepRecord, canonical_params
+from swarmraft.protocol.records import Report, StepRecord, canonical_params, settled
 from swarmraft.raft import Entry, EntryKind, Snapshot
 
 if TYPE_CHECKING:
@@ -342,7 +342,7 @@ class Auditor:
             return None if unknown_ok else f"prior step {rec.prior_step}: this drone holds no record for it"
         for h in held:
             if (
-                h.status not in UNSETTLED
+                settled(h)
                 and np.array_equal(h.positions, rec.prior_positions, equal_nan=True)
                 and np.array_equal(h.faulty, rec.prior_faulty)
             ):

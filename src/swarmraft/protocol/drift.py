@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import chdtri, ndtri
 
-from swarmraft.protocol.records import UNSETTLED, StepRecord
+from swarmraft.protocol.records import StepRecord, settled
 
 
 @dataclass(frozen=True)
@@ -163,7 +163,7 @@ def realigns(
     record (its reports carry the test's input): every drone decides the same. ``test``: where
     the caller has it, `realign_test` of this record (the simulator runs it once per record for
     every drone that applies it)."""
-    if rec.faulty[i] or rec.status in UNSETTLED or not np.isfinite(rec.positions[i]).all():
+    if rec.faulty[i] or not settled(rec) or not np.isfinite(rec.positions[i]).all():
         return False
     if model is None:
         return True

@@ -28,7 +28,13 @@ from swarmraft.estimation.bounds import gnss_covariance
 from swarmraft.estimation.joint import anchor_counts, trusted_estimate
 from swarmraft.protocol.drift import DriftModel, DriftVerdict, record_drift
 from swarmraft.protocol.memo import BoundedMemo, record_digest
-from swarmraft.protocol.records import UNSETTLED, Report, StepRecord, canonical_params, reports_digest
+from swarmraft.protocol.records import (
+    Report,
+    StepRecord,
+    canonical_params,
+    reports_digest,
+    settled,
+)
 from swarmraft.protocol.signing import Keyring
 
 MIN_SIGMA = 1e-3  # m: floor for exact (noise-free) scenarios, as the detectors use
@@ -261,10 +267,10 @@ class SwarmDrone:
 
     def trusted_record(self, step: int) -> StepRecord | None:
         """The newest record at most PRIOR_STEPS before ``step`` whose verdict can be carried
-        on (status neither alarm nor unidentifiable), or None."""
+        on (`records.settled`), or None."""
         for k in range(step - 1, max(step - 1 - PRIOR_STEPS, -1), -1):
             rec = self.state.records.get(k)
-            if rec is not None and rec.status not in UNSETTLED:
+            if rec is not None and settled(rec):
                 return rec
         return None
 

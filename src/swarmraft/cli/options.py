@@ -165,16 +165,27 @@ def key_values(items: tuple[str, ...]) -> dict[str, Any]:
     return out
 
 
+def typed(name: str) -> bool:
+    """Whether the running command's option ``name`` (its Python name) was given on the
+    command line or in the environment, not left at its default: a default must not pass
+    for a typed flag where a --config file sets the same thing."""
+    source = click.get_current_context().get_parameter_source(name)
+    return source not in (None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+
+
 def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
     """A validated SweepConfig from a preset, an optional TOML file and command-line flags
-    (flags override the file, the file overrides the preset)."""
+    (flags override the file, the file overrides the preset; a --preset left at its default
+    does not override the file's)."""
     from swarmraft.experiments import ConfigError, build_config
     from swarmraft.experiments.config import merged, read_toml
 
     settings: dict[str, Any] = {}
     if config_file is not None:
         settings = read_toml(config_file, "--config")
-        preset = settings.pop("preset", preset)
+        file_preset = settings.pop("preset", None)
+        if file_preset is not None and not typed("preset"):
+            preset = file_preset
     overrides = {
         "n": swarm_sizes(n_text),
         "f": attacker_counts(f_text),

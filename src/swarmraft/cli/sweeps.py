@@ -23,6 +23,7 @@ from swarmraft.cli.options import (
     name_list,
     swarm_sizes,
     sweep_config,
+    typed,
 )
 from swarmraft.cli.tables import (
     calibration_table,
@@ -45,7 +46,7 @@ from swarmraft.cli.tables import (
     "--config",
     "config_file",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="TOML file with sweep settings (flags given here override it).",
+    help="TOML file with sweep settings (flags typed here override it; defaults do not).",
 )
 @click.option("--n", "n_text", help="swarm sizes: 3,5,7 or 3-17 or 3-17:2 [default 3-17:2]")
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
@@ -408,7 +409,9 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
     "--config",
     "config_file",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="TOML file with sweep settings (flags given here override it).",
+    help="TOML file with sweep settings (flags typed here override it; the defaults of --n, "
+    "--trials, --attacks and --preset apply only where it sets nothing, its [attack] name "
+    "the attack compared).",
 )
 @click.option(
     "--detectors",
@@ -469,8 +472,13 @@ def compare_cmd(
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     from swarmraft.experiments.config import attack_names
 
-    atks = name_list(attacks, "--attacks", attack_names(), "attack")
+    if config_file is not None:  # the file sets what no flag was typed for, not compare's defaults
+        n_text = n_text if typed("n_text") else None
+        trials = trials if typed("trials") else None
     config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    if config_file is not None and not typed("attacks"):
+        attacks = config.attack.name
+    atks = name_list(attacks, "--attacks", attack_names(), "attack")
     out = out or Path("results") / f"compare-{config.preset}"
     check_out(out)
     before = listed(out)

@@ -1,0 +1,43 @@
+"""A --config file sets what the command line leaves alone, and a flag typed on the command
+line wins over the file: the options' defaults must not pass for typed flags (a review found
+compare running its own default cells, trials and attack over a file's, and sweep keeping
+the file's preset over a typed --preset)."""
+
+import json
+
+from click.testing import CliRunner
+
+from swarmraft.cli import main
+
+CONFIG = 'preset = "realistic"\nn = [9]\nf = [2]\ntrials = 20\nseed = 7\n[attack]\nname = "collusion-1"\n'
+
+
+def test_compare_takes_the_files_cells_trials_and_attack(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c.toml").write_text(CONFIG)
+    r = CliRunner().invoke(
+        main, ["compare", "--config", "c.toml", "--detectors", "paper", "--workers", "1", "--out", "o"]
+    )
+    assert r.exit_code == 0, r.output
+    assert "compare: paper on collusion-1, preset realistic, 1 cells x 20 trials" in " ".join(
+        r.output.split()
+    )
+    config = json.loads((tmp_path / "o" / "collusion-1" / "paper" / "run.json").read_text())["config"]
+    assert (config["n"], config["f"], config["trials"], config["seed"]) == ([9], [2], 20, 7)
+
+
+def test_a_typed_flag_wins_over_the_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c.toml").write_text(CONFIG)
+    args = ["--config", "c.toml", "--preset", "reference", "--trials", "30", "--workers", "1"]
+    r = CliRunner().invoke(main, ["sweep", *args, "--out", "s"])
+    assert r.exit_code == 0, r.output
+    config = json.loads((tmp_path / "s" / "run.json").read_text())["config"]
+    assert (config["preset"], config["trials"], config["n"]) == ("reference", 30, [9])
+    r = CliRunner().invoke(
+        main, ["compare", *args, "--attacks", "jump", "--detectors", "paper", "--out", "c"]
+    )
+    assert r.exit_code == 0, r.output
+    config = json.loads((tmp_path / "c" / "jump" / "paper" / "run.json").read_text())["config"]
+    assert (config["preset"], config["trials"]) == ("reference", 30)
+    assert "paper on jump" in r.output

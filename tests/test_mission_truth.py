@@ -167,3 +167,28 @@ def test_a_record_that_verified_no_drone_is_carried_on_neither_as_prior_nor_as_i
     placed = log.committed[after][:, None] & np.isfinite(errors["swarmraft"][after])
     off = placed[:, 1] & (errors["swarmraft"][after, 1] > 10.0) & ~log.faulty[after, 1]
     assert not off.any(), log.t[after][off]
+
+
+def test_a_collusions_geometry_comes_from_the_seed():
+    """A collusion's rotation axis and sign were drawn from np.random.default_rng(k), k the
+    spoof's index: every seed gave the same rotation, so a seed sweep never varied the
+    attack (found by a review). They come from the attack generator now; the other spoofs'
+    draws are as before."""
+    from swarmraft.world.timeline import AttackTimeline, Spoof
+
+    truth = np.random.default_rng(0).uniform(0, 50, (7, 3))
+    coll = Spoof("collusion", (2, 4), 0.0, pivots=(1,))
+    jump = Spoof("jump", (5,), 0.0)
+
+    def fixes(seed: int, spoofs: list) -> np.ndarray:
+        return AttackTimeline.build(np.random.default_rng(seed), spoofs, []).gnss(1.0, truth, truth)[0]
+
+    assert not np.allclose(fixes(1, [coll])[[2, 4]], fixes(2, [coll])[[2, 4]])
+    assert np.array_equal(fixes(1, [coll]), fixes(1, [coll]))
+    # the other spoofs' draws are as they were: the jump's direction after the collusion's
+    from swarmraft.world.attacks import random_directions
+
+    rng = np.random.default_rng(1)
+    random_directions(rng, 2)  # the collusion's two directions, drawn (unused) as before
+    built = AttackTimeline.build(np.random.default_rng(1), [coll, jump], [])
+    assert np.array_equal(built.directions[1], random_directions(rng, 1))

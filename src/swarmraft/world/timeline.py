@@ -57,6 +57,9 @@ class AttackTimeline:
     outages: list[Outage] = field(default_factory=list)
     directions: list[np.ndarray] = field(default_factory=list)
     anchors: list[np.ndarray | None] = field(default_factory=list)
+    # per collusion spoof, the seed of its rigid motion's draws (axis, angle's sign), from the
+    # attack generator; the same each step, so the motion stays rigid over time
+    motion_seeds: list[int | None] = field(default_factory=list)
 
     @classmethod
     def build(cls, rng: np.random.Generator, spoofs: list[Spoof], outages: list[Outage]) -> AttackTimeline:
@@ -69,7 +72,10 @@ class AttackTimeline:
                 if s.same_direction:  # drawn as before, so other draws do not shift
                     d[:] = d[0]
             dirs.append(d)
-        return cls(list(spoofs), list(outages), dirs, [None] * len(spoofs))
+        # a child generator per collusion (spawning draws nothing from rng: the other spoofs'
+        # directions, and everything drawn from rng after this, stay as they were)
+        seeds = [int(rng.spawn(1)[0].integers(2**62)) if s.kind == "collusion" else None for s in spoofs]
+        return cls(list(spoofs), list(outages), dirs, [None] * len(spoofs), seeds)
 
     def gnss(self, t: float, truth: np.ndarray, fix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Receiver output at time t from true positions (n, 3) and honest fixes (n, 3):
@@ -95,7 +101,7 @@ class AttackTimeline:
             else:
                 piv = truth[np.array(s.pivots)][None]
                 theta = (s.angle_deg, s.angle_deg)
-                R, shift = rigid_motions(np.random.default_rng(k), piv, theta)
+                R, shift = rigid_motions(np.random.default_rng(self.motion_seeds[k]), piv, theta)
                 out[idx] = truth[idx] @ R[0].T + shift[0]
         has_fix = np.ones(n, dtype=bool)
         for o in self.outages:

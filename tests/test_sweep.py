@@ -165,3 +165,29 @@ def test_a_flag_sets_its_own_keys_of_a_config_files_table(tmp_path):
     assert (cfg.attack.name, cfg.attack.low, cfg.attack.high) == ("jump", 40.0, 50.0)
     cfg = sweep_config("realistic", path, "7", "1", False, 10, None, {"attack": {"name": "range-bias"}})
     assert (cfg.attack.name, cfg.attack.low) == ("range-bias", 40.0)
+
+
+def test_an_interrupted_run_keeps_the_provenance_of_the_cells_it_finished(tmp_path, monkeypatch):
+    """run.json listed a run only once every cell was done: a cell finished by a run that was
+    then interrupted was listed under no run after the resume (found by a review)."""
+    import swarmraft.experiments.sweep as sweep
+
+    cfg = build_config("reference", n=(3, 5), diagonal=True, trials=20)
+    written = []
+    real = sweep.write_columns
+
+    def stop_after_the_first_cell(path, data, columns):
+        if written and path.name != "trials.csv":
+            raise KeyboardInterrupt
+        real(path, data, columns)
+        written.append(path.name)
+
+    monkeypatch.setattr(sweep, "write_columns", stop_after_the_first_cell)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(cfg, tmp_path, workers=1)
+    runs = json.loads((tmp_path / "run.json").read_text())["runs"]
+    assert [r["cells"] for r in runs] == [[[3, 1]]]
+    monkeypatch.setattr(sweep, "write_columns", real)
+    run_sweep(cfg, tmp_path, workers=1)
+    run = json.loads((tmp_path / "run.json").read_text())
+    assert [r["cells"] for r in run["runs"]] == [[[3, 1]], [[5, 2]]] and run["complete"]

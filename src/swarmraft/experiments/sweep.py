@@ -363,10 +363,19 @@ def run_sweep(
         "config_sha256": config_hash(config),
         "code_sha256": code_hash(config.detector, config.attack.name),
     }
+    # this run's entry, listed as its first cell is written and brought up to date with each
+    # one after it: an interrupted run keeps the provenance of the cells it finished
+    this_run: dict = {
+        **meta,
+        "executor": executor_name,
+        "started": started,
+        "wall_seconds": None,
+        "cells": [],
+    }
     if tasks:
         warm_up()
         with make_executor(workers, scheduler) as ex:
-            executor_name = ex.name
+            executor_name = this_run["executor"] = ex.name
             for (n, f, ci), result in ex.run(tasks):
                 pending[(n, f)][ci] = result
                 if tick:
@@ -377,6 +386,11 @@ def run_sweep(
                     merged = {k: np.concatenate([p[k] for p in parts]) for k in TRIAL_COLUMNS}
                     write_json(provenance_path(out, n, f), {**meta, "n": n, "f": f, "trials": config.trials})
                     write_columns(cell_path(out, n, f), merged, TRIAL_COLUMNS)
+                    if not this_run["cells"]:
+                        runs.append(this_run)
+                    this_run["cells"].append([n, f])
+                    this_run["wall_seconds"] = round(time.perf_counter() - start, 3)
+                    _write_run(out, config, settings, runs, {"complete": False})
 
     labels = {"preset": config.preset, "detector": config.detector, "attack": config.attack.name}
     all_trials: list[dict[str, np.ndarray]] = []
@@ -390,15 +404,8 @@ def run_sweep(
     write_rows(out / "cells.csv", CELL_COLUMNS, rows)
     seconds = time.perf_counter() - start
     if todo:
-        runs.append(
-            {
-                **meta,
-                "executor": executor_name,
-                "started": started,
-                "wall_seconds": round(seconds, 3),
-                "cells": [list(c) for c in todo],
-            }
-        )
+        this_run["wall_seconds"] = round(seconds, 3)
+        this_run["cells"] = [list(c) for c in todo]  # in the config's order, as before
     _write_run(out, config, settings, runs, {"complete": True})
     return SweepResult(
         out=out,

@@ -353,3 +353,12 @@ def test_a_mission_run_again_leaves_no_figure_or_report_of_the_run_before(cwd):
     assert not (cwd / "m" / "report.html").exists()
     assert len(list((cwd / "m" / "figures").glob("*.png"))) == 4
     assert (cwd / "notes.txt").read_text() == "mine"
+
+
+def test_curves_refuses_another_kind_of_results_folder_and_repeated_offsets(ref):
+    """curves wrote curves.csv and its figures into a sweep's or a mission's folder without a
+    word, and ran a repeated offset twice (found by a new-user review)."""
+    curves = ["curves", "--n", "5", "--f", "1", "--trials", "10"]
+    line = fails_cleanly([*curves, "--out", "ref"], "--out ref is a sweep folder", ref.parent)
+    assert "curves writes a folder of its own" in line
+    fails_cleanly([*curves, "--offsets", "10,10", "--out", "new"], "--offsets: 10 m twice", ref.parent)

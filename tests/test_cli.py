@@ -207,8 +207,8 @@ def test_compare_and_curves(tmp_path):
             in text
         )
         pd = dict(zip(c["offset"][k], c["detection"][k], strict=True))
-        half = "5 m" if pd[5.0] >= 0.5 else "30 m" if pd[30.0] >= 0.5 else "not reached by 30 m"
-        assert f"half the attacked drones flagged from {half}" in text.split(f"{det}: ")[1]
+        half = "from 5 m" if pd[5.0] >= 0.5 else "from 30 m" if pd[30.0] >= 0.5 else "at no offset up to 30 m"
+        assert f"half the attacked drones flagged {half}" in text.split(f"{det}: ")[1]
     bad = CliRunner().invoke(main, ["compare", "--attacks", "teleport", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "unknown attack 'teleport'" in bad.output
 

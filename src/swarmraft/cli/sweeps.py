@@ -595,6 +595,11 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
         raise click.BadParameter(
             f"offsets are distances, finite and >= 0 m: got {offsets!r}", param_hint="--offsets"
         )
+    if twice := sorted({v for v in offs if offs.count(v) > 1}):
+        raise click.BadParameter(f"{', '.join(f'{v:g}' for v in twice)} m twice", param_hint="--offsets")
+    from swarmraft.experiments.results_folder import require_own
+
+    require_own(out, "curves", "curves")
     config = build_config(preset, n=(n,), f=(f,), trials=trials, seed=seed)
     total = sum(len(THRESHOLDS[d][1]) + len(offs) for d in dets if d in THRESHOLDS)
     prog, start = progress_bar("curves", "points")
@@ -625,15 +630,17 @@ def curve_lines(points: list, false_alarm: float) -> list[str]:
         if not pts:
             continue
 
-        def first(share: float, pts: list = pts) -> str:
+        def first(share: float, what: str, pts: list = pts) -> str:
             hit = next((p.offset for p in pts if p.detection >= share), None)
-            return f"{hit:g} m" if hit is not None else f"not reached by {pts[-1].offset:g} m"
+            if hit is None:
+                return f"{what} flagged at no offset up to {pts[-1].offset:g} m"
+            return f"{what} flagged from {hit:g} m"
 
         fa = float(np.mean([p.false_alarm for p in pts]))
         out.append(
             f"{det}: {pts[0].parameter} = {pts[0].threshold:.4g} (false alarms <= {false_alarm:.1%} in the "
-            f"ROC's trials; {fa:.1%} in the offset trials); half the attacked drones flagged from "
-            f"{first(0.5)}, 90 % from {first(0.9)} (of the offsets tried)"
+            f"ROC's trials; {fa:.1%} in the offset trials); {first(0.5, 'half the attacked drones')}, "
+            f"{first(0.9, '90 %')} (of the offsets tried)"
         )
     return out
 

@@ -41,3 +41,23 @@ def test_a_typed_flag_wins_over_the_file(tmp_path, monkeypatch):
     config = json.loads((tmp_path / "c" / "jump" / "paper" / "run.json").read_text())["config"]
     assert (config["preset"], config["trials"]) == ("reference", 30)
     assert "paper on jump" in r.output
+
+
+def test_a_value_that_does_not_exist_is_a_dash_in_the_tables():
+    """docs/cli-output.md: '-' marks a value that does not exist; the sweep and compare tables
+    printed nan for attacked drones no trial placed (found by a new-user review)."""
+    import numpy as np
+    from rich.console import Console
+
+    from swarmraft.cli.tables import compare_table
+
+    nan = float("nan")
+    row = {"attack": ["jump"], "detector": ["clique"], "n": [5], "f": [2], "recovered_mean": [nan]}
+    row |= {k: [nan] for k in ("honest_mean", "honest_baseline_mean", "attacked_efficiency")}
+    row |= {k: [0.5] for k in ("detection_rate", "false_positive_rate", "identification_rate")}
+    row |= {"status_unidentifiable": [0.0]}
+    table, _ = compare_table({k: np.asarray(v) for k, v in row.items()}, "t")
+    console = Console(record=True, width=120)
+    console.print(table)
+    text = console.export_text()
+    assert "nan" not in text and text.splitlines()[-1].split()[4:8] == ["-", "-", "-", "-"]

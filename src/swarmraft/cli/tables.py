@@ -31,6 +31,12 @@ def _pct(v: float) -> str:
     return "-" if np.isnan(v) else f"{v:.1%}"
 
 
+def _num(v: float, spec: str) -> str:
+    """``v`` formatted by ``spec``; ``-`` where it does not exist (nan), as every table marks it."""
+    v = float(v)
+    return "-" if np.isnan(v) else format(v, spec)
+
+
 SUMMARY_LEGEND = (
     "Errors in m, over the trials of each cell. base: the attacked drones' reports before "
     "verification; mean, sem, med, p99: the attacked drones after recovery (mean, its standard "
@@ -61,13 +67,13 @@ def summary_table(cells: Mapping[str, np.ndarray], title: str) -> tuple[Table, s
             str(cells["n"][i]),
             str(cells["f"][i]),
             str(cells["trials"][i]),
-            f"{cells['baseline_mean'][i]:.2f}",
-            f"{cells['recovered_mean'][i]:.3g}",
-            f"{cells['recovered_sem'][i]:.2g}",
-            f"{cells['recovered_median'][i]:.2g}",
-            f"{cells['recovered_p99'][i]:.3g}",
+            _num(cells["baseline_mean"][i], ".2f"),
+            _num(cells["recovered_mean"][i], ".3g"),
+            _num(cells["recovered_sem"][i], ".2g"),
+            _num(cells["recovered_median"][i], ".2g"),
+            _num(cells["recovered_p99"][i], ".3g"),
             _pct(cells["frac_over_1m"][i]),
-            f"{cells['honest_mean'][i]:.3g}",
+            _num(cells["honest_mean"][i], ".3g"),
             _pct(cells["detection_rate"][i]),
             _pct(cells["false_positive_rate"][i]),
             *([_pct(und[i])] if shown else []),
@@ -98,10 +104,10 @@ def compare_table(table: Mapping[str, np.ndarray], title: str) -> tuple[Table, s
             str(table["detector"][i]),
             str(table["n"][i]),
             str(table["f"][i]),
-            f"{table['recovered_mean'][i]:.3g}",
-            f"{table['honest_mean'][i]:.3g}",
-            f"{table['honest_baseline_mean'][i]:.3g}",
-            "-" if np.isnan(eff) else f"{eff:.2f}",
+            _num(table["recovered_mean"][i], ".3g"),
+            _num(table["honest_mean"][i], ".3g"),
+            _num(table["honest_baseline_mean"][i], ".3g"),
+            _num(eff, ".2f"),
             _pct(table["detection_rate"][i]),
             _pct(table["false_positive_rate"][i]),
             _pct(table["identification_rate"][i]),

@@ -61,3 +61,20 @@ def test_a_value_that_does_not_exist_is_a_dash_in_the_tables():
     console.print(table)
     text = console.export_text()
     assert "nan" not in text and text.splitlines()[-1].split()[4:8] == ["-", "-", "-", "-"]
+
+
+def test_a_comparison_run_again_leaves_no_figure_it_did_not_draw(tmp_path, monkeypatch):
+    """A comparison with no efficiency (every value nan) drew no efficiency figure, and the
+    one of the comparison before in the same folder stayed, embedded by `report` (found by a
+    new-user review)."""
+    monkeypatch.chdir(tmp_path)
+    run = ["compare", "--n", "9", "--f", "2", "--trials", "10", "--workers", "1", "--out", "c"]
+    assert CliRunner().invoke(main, [*run, "--detectors", "joint"]).exit_code == 0
+    figure = tmp_path / "c" / "figures" / "attacked_efficiency.png"
+    assert figure.exists()
+    (tmp_path / "c" / "report.html").write_text("old")
+    # exact data (reference preset): no Cramer-Rao bound, no efficiency figure to draw
+    r = CliRunner().invoke(main, [*run, "--detectors", "clique", "--preset", "reference"])
+    assert r.exit_code == 0, r.output
+    assert not figure.exists()
+    assert not (tmp_path / "c" / "report.html").exists()

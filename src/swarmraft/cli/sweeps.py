@@ -396,10 +396,15 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
         cells = Path(out, *map(str, pair), "cells.csv")
         files = (cells, cells.with_name("trials.csv"), cells.with_name("run.json"))
         written += [p for p in files if p.exists()]
-    for name in compare_figure_names(table):
+    drawn = compare_figure_names(table)
+    for name in drawn:
         metric = name.removesuffix(".png")
         label, log, ref = COMPARE_METRICS[metric]
         written.append(viz.compare(table, metric, label, log, Path(out) / "figures" / name, ref))
+    for metric in COMPARE_METRICS:  # a metric without a value this time: its old figure goes
+        if f"{metric}.png" not in drawn:
+            (Path(out) / "figures" / f"{metric}.png").unlink(missing_ok=True)
+    (Path(out) / "report.html").unlink(missing_ok=True)  # drawn from the comparison before
     return written
 
 

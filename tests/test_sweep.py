@@ -191,3 +191,33 @@ def test_an_interrupted_run_keeps_the_provenance_of_the_cells_it_finished(tmp_pa
     run_sweep(cfg, tmp_path, workers=1)
     run = json.loads((tmp_path / "run.json").read_text())
     assert [r["cells"] for r in run["runs"]] == [[[3, 1]], [[5, 2]]] and run["complete"]
+
+
+def test_an_executor_that_cannot_start_leaves_nothing_written(tmp_path, monkeypatch):
+    """An unreachable Dask scheduler was reported in one line, but run.json was written
+    already (found by a review): nothing is, until the executor runs."""
+    import swarmraft.experiments.sweep as sweep
+
+    def unreachable(workers, scheduler):
+        raise ValueError("--scheduler: cannot reach tcp://127.0.0.1:1")
+
+    monkeypatch.setattr(sweep, "make_executor", unreachable)
+    with pytest.raises(ValueError, match="cannot reach"):
+        run_sweep(build_config("reference", n=(5,), f=(2,), trials=10), tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_table_interrupted_while_written_leaves_the_old_one_and_no_temporary_file(tmp_path):
+    from swarmraft.experiments.tables import write_rows
+
+    path = tmp_path / "t.csv"
+    write_rows(path, ["a"], [{"a": 1}])
+
+    def rows():
+        yield {"a": 2}
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_rows(path, ["a"], rows())
+    assert path.read_text().splitlines() == ["a", "1"]
+    assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]

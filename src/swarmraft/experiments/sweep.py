@@ -346,8 +346,6 @@ def run_sweep(
     for n in sorted({n for n, _ in cells} - set(settings)):
         settings[n] = detector_settings(config, n)
     runs = list(previous.get("runs", [])) if previous else []
-    out.mkdir(parents=True, exist_ok=True)
-    _write_run(out, config, settings, runs, {"complete": False})
 
     plan = chunks(config)
     tasks = [
@@ -375,6 +373,10 @@ def run_sweep(
     if tasks:
         warm_up()
         with make_executor(workers, scheduler) as ex:
+            # written once the executor runs: one that cannot start (an unreachable
+            # scheduler) leaves nothing behind
+            out.mkdir(parents=True, exist_ok=True)
+            _write_run(out, config, settings, runs, {"complete": False})
             executor_name = this_run["executor"] = ex.name
             for (n, f, ci), result in ex.run(tasks):
                 pending[(n, f)][ci] = result

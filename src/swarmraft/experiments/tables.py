@@ -26,11 +26,15 @@ def write_rows(path: Path, columns: Sequence[str], rows: Iterable[Mapping[str, o
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(columns)
-        for row in rows:
-            w.writerow([_fmt(row[c]) for c in columns])
+    try:
+        with tmp.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(columns)
+            for row in rows:
+                w.writerow([_fmt(row[c]) for c in columns])
+    except BaseException:  # an interrupt mid-table: no half-written .tmp left beside it
+        tmp.unlink(missing_ok=True)
+        raise
     os.replace(tmp, path)
 
 

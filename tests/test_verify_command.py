@@ -90,3 +90,13 @@ def test_bad_snapshot_files_are_one_line(tmp_path, monkeypatch):
         ["verify", "s.csv", "--gnss-sigma", "1.5", "--range-sigma", "0.1"], "--gnss-sigma", tmp_path
     )
     fails_cleanly(["verify", "s.csv", "--range-sigma", "0.1", "--detector", "nope"], "nope", tmp_path)
+
+
+def test_a_bad_gnss_sigma_is_refused_even_where_the_file_gives_its_own(tmp_path, monkeypatch):
+    """--gnss-sigma -1,2 was passed over without a word when the JSON file gave gnss_sigma
+    (found by a new-user review)."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(EXAMPLES / "snapshot.json", tmp_path / "s.json")
+    assert "gnss_sigma" in json.loads((tmp_path / "s.json").read_text())
+    line = fails_cleanly(["verify", "s.json", "--gnss-sigma", "-1,2"], "--gnss-sigma", tmp_path)
+    assert "sigmas are finite and >= 0 m" in line

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
@@ -21,6 +22,10 @@ def _pair(text: str | None, option: str) -> tuple[float, float] | None:
         h, v = (float(p) for p in parts)
     except ValueError:
         raise click.BadParameter(f"expected H,V in metres, got {text!r}", param_hint=option) from None
+    # checked here, whether or not the file gives its own (then the flag is unused, but a
+    # bad value is still an error, not silently passed over)
+    if not (math.isfinite(h) and math.isfinite(v) and h >= 0 and v >= 0):
+        raise click.BadParameter(f"sigmas are finite and >= 0 m, got {text!r}", param_hint=option)
     return h, v
 
 

@@ -78,3 +78,31 @@ def test_a_comparison_run_again_leaves_no_figure_it_did_not_draw(tmp_path, monke
     assert r.exit_code == 0, r.output
     assert not figure.exists()
     assert not (tmp_path / "c" / "report.html").exists()
+
+
+def test_the_calibration_line_is_wrapped_in_a_pipe(tmp_path, monkeypatch):
+    """docs/cli-output.md: prose wraps at 100 columns with a 4-space indent in a pipe; the
+    calibrated thresholds' line ran on to about 130 (found by a new-user review)."""
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(
+        main,
+        [
+            "sweep",
+            "--preset",
+            "realistic",
+            "--n",
+            "3-17:2",
+            "--f",
+            "1",
+            "--trials",
+            "10",
+            "--workers",
+            "1",
+            "--out",
+            "s",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("thresholds calibrated"))
+    assert len(lines[k]) <= 100 and lines[k + 1].startswith("    ")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from swarmraft.cli.app import console, heading, main, print_table, progress_bar
+from swarmraft.cli.app import console, heading, main, print_table, print_wrapped, progress_bar
 from swarmraft.cli.missions import mission_figures, print_mission_summary
 from swarmraft.cli.options import WORKERS, OutFolder
 from swarmraft.cli.sweeps import calibration_line, draw_figures, report_compare
@@ -84,7 +84,7 @@ def demo(out, trials, workers, scenario_file) -> None:
                 soft_wrap=True,
             )
         if line := calibration_line(folder):
-            console.print(line)
+            print_wrapped(line)
         written += result.paths + draw_figures("all", folder)
         console.print(f"{preset} done in {result.seconds:.1f} s on {result.executor}")
     from swarmraft.experiments.compare import run_compare

@@ -139,7 +139,7 @@ def sweep(
         console.print(f"reused {len(result.reused)} finished cells from {out}", soft_wrap=True)
     print_table(summary_table(result.cells, f"{config.preset}: mean error of attacked drones"))
     if line := calibration_line(out):
-        console.print(line)
+        print_wrapped(line)
     if result.computed:
         console.print(f"done in {result.seconds:.1f} s on {result.executor}")
     else:

@@ -192,3 +192,15 @@ def test_a_collusions_geometry_comes_from_the_seed():
     random_directions(rng, 2)  # the collusion's two directions, drawn (unused) as before
     built = AttackTimeline.build(np.random.default_rng(1), [coll, jump], [])
     assert np.array_equal(built.directions[1], random_directions(rng, 1))
+
+
+def test_a_reflection_about_collinear_pivots_is_an_error_not_nan_reports():
+    """Three collinear pivots fix no plane: the reflection divided by a zero normal and the
+    victims reported NaN, which the mission took as missing reports (found by a review)."""
+    from swarmraft.world.timeline import AttackTimeline, Spoof
+
+    truth = np.array([[0.0, 0, 0], [10, 0, 0], [20, 0, 0], [0, 10, 5], [5, 5, 5]])
+    coll = Spoof("collusion", (3, 4), 0.0, pivots=(0, 1, 2))
+    timeline = AttackTimeline.build(np.random.default_rng(1), [coll], [])
+    with pytest.raises(ValueError, match=r"collusion: pivots 1, 2, 3 are collinear at t = 1 s"):
+        timeline.gnss(1.0, truth, truth)

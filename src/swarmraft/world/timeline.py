@@ -100,6 +100,14 @@ class AttackTimeline:
                 out[idx] = self.anchors[k]
             else:
                 piv = truth[np.array(s.pivots)][None]
+                if len(s.pivots) == 3:
+                    a, b = piv[0, 1] - piv[0, 0], piv[0, 2] - piv[0, 0]
+                    if np.linalg.norm(np.cross(a, b)) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b):
+                        ids = ", ".join(str(p + 1) for p in s.pivots)
+                        raise ValueError(
+                            f"collusion: pivots {ids} are collinear at t = {t:g} s: they fix no plane "
+                            "to reflect in (choose pivots not on one line)"
+                        )
                 theta = (s.angle_deg, s.angle_deg)
                 R, shift = rigid_motions(np.random.default_rng(self.motion_seeds[k]), piv, theta)
                 out[idx] = truth[idx] @ R[0].T + shift[0]

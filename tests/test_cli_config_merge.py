@@ -106,3 +106,26 @@ def test_the_calibration_line_is_wrapped_in_a_pipe(tmp_path, monkeypatch):
     lines = r.output.splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("thresholds calibrated"))
     assert len(lines[k]) <= 100 and lines[k + 1].startswith("    ")
+
+
+def test_compare_keeps_its_defaults_for_what_the_file_does_not_set(tmp_path, monkeypatch):
+    """A file that sets neither cells nor an attack: compare's own defaults (9, 13, 17; jump),
+    not the preset's whole grid (a review found 36 cells x 10,000 trials instead of 18 x 1,000)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c.toml").write_text("[attack]\nmin_move = 30.0\n")
+    args = ["compare", "--config", "c.toml", "--detectors", "paper", "--trials", "5", "--f", "1"]
+    r = CliRunner().invoke(main, [*args, "--workers", "1", "--out", "o"])
+    assert r.exit_code == 0, r.output
+    assert "compare: paper on jump, preset realistic, 3 cells x 5 trials" in " ".join(r.output.split())
+
+
+def test_sweep_config_from_python_is_not_a_click_command():
+    """options.typed asked click for the running command's context: sweep_config called from
+    Python (tests, notebooks) with a file that sets a preset raised RuntimeError."""
+    from pathlib import Path
+
+    from swarmraft.cli.options import sweep_config
+
+    example = Path(__file__).parent.parent / "docs" / "examples" / "collusion-30m.toml"
+    config = sweep_config("reference", example, "12", "4", False, None, None, {})
+    assert config.preset == "realistic"

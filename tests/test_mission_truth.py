@@ -34,11 +34,24 @@ def test_a_first_detection_without_a_gnss_error_is_null_not_a_crash(spoofed):
 
 def test_a_summary_that_cannot_be_written_leaves_the_folder_as_it_was(spoofed, tmp_path):
     write_results(run_mission(Scenario(drones=5, duration_s=1, seed=1)), tmp_path)  # another mission
-    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
-    assert set(before) == {"steps.csv", "summary.json", "scenario.json"}
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "error_over_time.png").write_bytes(b"its figure")
+    (tmp_path / "report.html").write_text("its report")
+
+    def tree() -> dict:
+        return {str(p.relative_to(tmp_path)): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+
+    before = tree()
+    assert set(before) == {
+        "steps.csv",
+        "summary.json",
+        "scenario.json",
+        "figures/error_over_time.png",
+        "report.html",
+    }
     with pytest.raises(ValueError, match="JSON"):
         write_results(spoofed, tmp_path, extra={"broken": float("nan")})
-    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert tree() == before
 
 
 def test_a_mission_that_commits_nothing_claims_nothing(tmp_path):

@@ -77,6 +77,11 @@ def test_what_stays_allowed():
     Scenario(drones=9, spoof=[{**JUMP, "end_s": 2}, {"kind": "drag", "drones": [4], "start_s": 2}])
     # a step that divides the mission up to rounding (0.3 s into 6 s), an event between steps
     Scenario(drones=9, duration_s=6, dt_s=0.3, fault=[{"kind": "crash-leader", "at_s": 5.95}])
+    # an enlargement (GNSS left alone) beside a position spoof of the same drone, or while it is
+    # jammed: it lengthens the ranges only
+    enl = {"kind": "enlarge", "drones": [4], "start_s": 3, "enlarge": 5.0}
+    Scenario(drones=9, spoof=[{**JUMP, "end_s": 5}, enl])
+    Scenario(drones=9, spoof=[enl], outage=[{"drones": [4], "start_s": 2}])
     # an enlargement with any kind of spoof (the README's `enlarge = 5.0`), partitions apart
     Scenario(drones=9, spoof=[{**JUMP, "enlarge": 5.0}])
     Scenario(drones=9, fault=[{"kind": "partition", "at_s": 1, "groups": [[1, 2, 3, 4], [5, 6]]}])

@@ -192,7 +192,7 @@ def print_mission_summary(summary: dict) -> None:
         print_wrapped(
             f"{head} flagged in {_pct(d['flagged_fraction'])} of {d['judged_steps']} steps; "
             f"first {_s(d['time_to_first_detection_s'])} (its GNSS then "
-            f"{d['reported_error_at_first_detection_m']} m off), sustained "
+            f"{_m(d['reported_error_at_first_detection_m'])} off), sustained "
             f"{_s(d['time_to_sustained_detection_s'])}",
             2,
         )

@@ -169,7 +169,10 @@ def typed(name: str) -> bool:
     """Whether the running command's option ``name`` (its Python name) was given on the
     command line or in the environment, not left at its default: a default must not pass
     for a typed flag where a --config file sets the same thing."""
-    source = click.get_current_context().get_parameter_source(name)
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:  # called from Python, not from a command: nothing was typed
+        return False
+    source = ctx.get_parameter_source(name)
     return source not in (None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
 
 

@@ -577,9 +577,6 @@ def write_results(
     at 256 drones it is a minute of a 60 s mission's bounds)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from swarmraft.experiments.results_folder import forget_derived  # (it reads mission folders)
-
-    forget_derived(out)  # the last run's figures and report described other data
     errors = error_series(log) if errors is None else errors
     summary = {**summarize(log, errors), **(extra or {})}
     # strict JSON: a value that does not exist is null, never NaN (which parsers refuse); both
@@ -589,6 +586,9 @@ def write_results(
         "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
         "scenario.json": json.dumps(log.scenario.model_dump(mode="json"), indent=2) + "\n",
     }
+    from swarmraft.experiments.results_folder import forget_derived  # (it reads mission folders)
+
+    forget_derived(out)  # the last run's figures, report and recording described other data
     write_rows(out / "steps.csv", step_columns(log), step_rows(log, errors))
     for name, text in texts.items():
         write_text(out / name, text)

@@ -67,13 +67,15 @@ def require_kind(path: str | Path, wanted: tuple[str, ...], option: str, use: st
 
 def forget_derived(out: str | Path) -> None:
     """Before a mission (or a networked run) writes into ``out``: if ``out`` is a mission
-    folder already, remove what was drawn from its last run (``figures/``, ``report.html``),
-    so that no figure, animation or report of another run is left beside the new data (a
-    report embedded every figure in the folder). A folder that is no mission's is not touched."""
+    folder already, remove what was drawn from its last run (``figures/``, ``report.html``,
+    ``recording.rrd``), so that no figure, animation, report or recording of another run is
+    left beside the new data (a report embedded every figure in the folder). A folder that is
+    no mission's is not touched."""
     import shutil
 
     out = Path(out)
     if folder_kind(out) not in ("mission", "launch"):
         return
     shutil.rmtree(out / "figures", ignore_errors=True)
-    (out / "report.html").unlink(missing_ok=True)
+    for name in ("report.html", "recording.rrd"):
+        (out / name).unlink(missing_ok=True)

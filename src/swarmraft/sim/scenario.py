@@ -237,9 +237,15 @@ def _check_overlaps(spoofs: list[SpoofConfig], outages: list[OutageConfig]) -> N
     still scored), and none spoofed while an outage leaves it without a GNSS fix (it reported
     INS: nothing was spoofed, and the spoof was scored as missed). Jamming then spoofing is
     an outage that ends when the spoof starts."""
+    # an `enlarge` spoof leaves GNSS alone (it lengthens the ranges): it replaces no position
+    # spoof and needs no fix, so it may overlap both
     for k, s in enumerate(spoofs):
+        if s.kind == "enlarge":
+            continue
         for j in range(k):
             t = spoofs[j]
+            if t.kind == "enlarge":
+                continue
             if (both := sorted(set(s.drones) & set(t.drones))) and _windows_meet(
                 s.start_s, s.end_s, t.start_s, t.end_s
             ):
@@ -249,6 +255,8 @@ def _check_overlaps(spoofs: list[SpoofConfig], outages: list[OutageConfig]) -> N
                 )
     for k, o in enumerate(outages):
         for j, s in enumerate(spoofs):
+            if s.kind == "enlarge":
+                continue
             if (both := sorted(set(o.drones) & set(s.drones))) and _windows_meet(
                 o.start_s, o.end_s, s.start_s, s.end_s
             ):

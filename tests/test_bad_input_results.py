@@ -362,3 +362,13 @@ def test_curves_refuses_another_kind_of_results_folder_and_repeated_offsets(ref)
     line = fails_cleanly([*curves, "--out", "ref"], "--out ref is a sweep folder", ref.parent)
     assert "curves writes a folder of its own" in line
     fails_cleanly([*curves, "--offsets", "10,10", "--out", "new"], "--offsets: 10 m twice", ref.parent)
+
+
+def test_launch_refuses_another_kind_of_results_folder(ref):
+    """launch wrote a mission's files (and records.csv) into a sweep's folder: neither could be
+    read again (found by a review). Refused before any process starts."""
+    (ref.parent / "tiny.toml").write_text('name = "tiny"\ndrones = 4\nduration_s = 1\n')
+    line = fails_cleanly(
+        ["launch", "--scenario", "tiny.toml", "--out", "ref"], "--out ref is a sweep folder", ref.parent
+    )
+    assert "a networked run writes a folder of its own" in line

@@ -226,3 +226,21 @@ def test_a_lie_is_timed_when_the_leader_was_told_not_when_launch_began_to_wait(t
     assert what == "leader 2 (term 1) compromised (SIGUSR1): lies (move drone 2)"
     assert run.logs[2] == ["start", "compromise"]  # run() starts every process first
     assert when == 6.0  # began at 101, asked at 103, 104, 105; told at 106
+
+
+def test_a_fault_that_finds_nothing_to_do_is_idle_not_an_event(tmp_path):
+    """As in the simulator (idle_faults): a crash-leader with no leader known, a fault the
+    processes cannot take, a relay fault without a relay did nothing, and listed as events
+    they excused the skipped steps after them in the launch summary (found by a review)."""
+    from swarmraft.net.localswarm import Idle
+
+    run = swarm_with(tmp_path, [{"kind": "crash-leader", "at_s": 3}, {"kind": "transfer-leader", "at_s": 4}])
+    role_events(run, 2, ("candidate", 4))
+    said = [a.run() for a in run.actions()]
+    assert all(isinstance(s, Idle) for s in said)
+    relayless = swarm_with(tmp_path / "r", [{"kind": "heal", "at_s": 1}])
+    relayless.relay = None
+    assert isinstance(relayless.actions()[0].run(), Idle)
+    # a fault that acted is an event
+    acted = swarm_with(tmp_path / "p", [{"kind": "pause", "at_s": 1, "drone": 2, "for_s": 1}])
+    assert not isinstance(acted.actions()[0].run(), Idle)

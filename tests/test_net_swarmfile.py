@@ -121,3 +121,14 @@ def test_a_missing_scenario_file_is_named_without_the_shipped_list(tmp_path):
     swarm = load_swarm(write(tmp_path, VALID.replace('scenario = "demo"', 'scenario = "nosuch"')))
     with pytest.raises(NodeConfigError, match="no shipped scenario of that name"):
         load_node_scenario(swarm)
+
+
+def test_a_step_s_that_does_not_divide_the_scenario_is_blamed_on_step_s(tmp_path):
+    """The swarm file's step_s replaces the scenario's dt_s; one that does not divide the
+    scenario's duration was reported as the scenario's dt_s (found by a review)."""
+    from swarmraft.net.node import NodeConfigError, load_node_scenario
+
+    swarm = load_swarm(write(tmp_path, VALID.replace("tick_ms = 10", "tick_ms = 10\nstep_s = 0.07")))
+    with pytest.raises(NodeConfigError) as err:
+        load_node_scenario(swarm)
+    assert str(err.value).startswith("step_s: 0.07 s does not divide duration_s = 60 s")

@@ -208,6 +208,9 @@ def launch(
         raise click.BadParameter(
             f"{out} holds a swarm already ({', '.join(held)}); choose another folder", param_hint="--out"
         )
+    from swarmraft.experiments.results_folder import require_own
+
+    require_own(out, "launch", "a networked run")  # not beside a sweep's, comparison's or mission's files
     from swarmraft.net.node import step_too_short
 
     if why := step_too_short(sc.dt_s, sc.raft.tick_ms):  # as each drone would refuse it, before they start
@@ -276,7 +279,8 @@ def launch(
     g = gather_steps(run.nodes_dir, n, flown - 1, sc.dt_s, out / "records.csv")
     up = run.up_after_step0()
     world = world or ScenarioWorld.build(sc)
-    log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills).first_steps(flown)
+    log = launch_log(world, run.nodes_dir, run.start_unix_s, run.events, run.kills, run.idle_faults)
+    log = log.first_steps(flown)
     extra = {
         "launch": {
             "processes": n,

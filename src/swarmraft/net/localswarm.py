@@ -52,6 +52,11 @@ def needs_relay(sc: Scenario) -> bool:
 STOP_WAIT_S = 10.0
 
 
+class Idle(str):
+    """What an action says when it found nothing to do (no leader to crash, a fault the
+    processes cannot take): listed as an idle fault, not as an event."""
+
+
 @dataclass
 class Action:
     at_s: float  # after step 0
@@ -72,6 +77,7 @@ class LocalSwarm:
     replay: Path | None = None  # a sensor log every drone replays (net.sources.replay)
     say: Callable[[str], None] = print
     events: list[tuple[float, str]] = field(default_factory=list)  # (s after step 0, what)
+    idle_faults: list[tuple[float, str]] = field(default_factory=list)  # faults that did nothing
     kills: dict[int, list[float]] = field(default_factory=dict)  # drone -> unix times of SIGKILL
     unstoppable: list[int] = field(default_factory=list)  # drones SIGKILLed at the end
     exited: list[tuple[int, float, int]] = field(default_factory=list)  # (drone, s, status) on its own
@@ -165,10 +171,12 @@ class LocalSwarm:
             elif f.kind == "lying-leader":
                 acts.append(Action(f.at_s, f.kind, self._compromise_leader))
             elif f.kind == "transfer-leader":
-                note = "transfer-leader: not applied (the drone processes take no commands; simulator only)"
+                note = Idle(
+                    "transfer-leader: not applied (the drone processes take no commands; simulator only)"
+                )
                 acts.append(Action(f.at_s, f.kind, lambda n=note: n))
             elif f.kind in ("join", "leave"):
-                note = (
+                note = Idle(
                     f"{f.kind}: not applied (every drone's process runs from the start, in the swarm; "
                     "simulator only)"
                 )
@@ -179,7 +187,7 @@ class LocalSwarm:
 
     def _kill(self, drone: int, what: str) -> str:
         if not self.procs[drone].alive:
-            return f"crash: drone {drone} is not running, nothing killed"
+            return Idle(f"crash: drone {drone} is not running, nothing killed")
         self.procs[drone].kill()
         self._down.add(drone)
         self.kills.setdefault(drone, []).append(time.time())
@@ -189,7 +197,7 @@ class LocalSwarm:
         alive = [i for i, p in self.procs.items() if p.alive and not p.paused]
         lead = current_leader(self.nodes_dir, alive)
         if lead is None:
-            return "crash-leader: no leader known, nothing killed"
+            return Idle("crash-leader: no leader known, nothing killed")
         return self._kill(lead[0], f"leader {lead[0]} (term {lead[1]}) killed (SIGKILL)")
 
     def _compromise_leader(self) -> str:
@@ -203,7 +211,7 @@ class LocalSwarm:
             if lead is None:
                 time.sleep(0.05)
         if lead is None:
-            return f"lying-leader: no leader known within {LIE_WAIT_S:g} s, nobody compromised"
+            return Idle(f"lying-leader: no leader known within {LIE_WAIT_S:g} s, nobody compromised")
         self.effect_at = time.time()  # after the wait for a leader: when it was told to lie
         self.procs[lead[0]].compromise()
         self.liar = lead[0]
@@ -212,7 +220,7 @@ class LocalSwarm:
 
     def _restart(self, drone: int) -> str:
         if self.procs[drone].alive:
-            return f"restart: drone {drone} is running, nothing started"
+            return Idle(f"restart: drone {drone} is running, nothing started")
         self.procs[drone].start()
         self._down.discard(drone)
         return f"drone {drone} restarted on its SQLite file"
@@ -232,7 +240,7 @@ class LocalSwarm:
 
     def _network_fault(self, f) -> str:  # noqa: ANN001 (a FaultConfig)
         if self.relay is None:
-            return f"{f.kind}: not applied (no fault relay: --relay off)"
+            return Idle(f"{f.kind}: not applied (no fault relay: --relay off)")
         r = self.relay
         if f.kind == "partition":
             r.call(r.relay.partition, f.groups)
@@ -284,7 +292,10 @@ class LocalSwarm:
                 self.effect_at = None  # an action that waits first (lying-leader) says when it acted
                 what = a.run()
                 at = self.effect_at if self.effect_at is not None else began
-                self.events.append((round(at - self.start_unix_s, 2), what))
+                # a fault that found nothing to do is said, not an event: an event excuses the
+                # skipped steps after it (experiments.mission.skipped_causes)
+                done = self.idle_faults if isinstance(what, Idle) else self.events
+                done.append((round(at - self.start_unix_s, 2), str(what)))
                 self.say(f"{a.at_s:g} s: {what}")
             end = self.start_unix_s + sc.steps * sc.dt_s + END_WAIT_S
             while any(p.alive for p in self.procs.values()) and time.time() < end:

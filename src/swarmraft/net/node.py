@@ -127,7 +127,10 @@ def load_node_scenario(swarm: SwarmFile) -> Scenario:
     try:
         sc = Scenario(**data)
     except ValidationError as exc:
-        raise NodeConfigError(f"scenario {path.name}: {one_line(exc, '', Scenario)}") from None
+        said = one_line(exc, "", Scenario)
+        if swarm.step_s is not None and said.startswith("dt_s:"):  # the swarm file's step_s set it
+            raise NodeConfigError(f"step_s: {said.removeprefix('dt_s:').strip()}") from None
+        raise NodeConfigError(f"scenario {path.name}: {said}") from None
     if sc.drones != len(swarm.drones):
         raise NodeConfigError(
             f"scenario {path.name}: {sc.drones} drones, the swarm file lists {len(swarm.drones)}"

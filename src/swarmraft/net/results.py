@@ -63,16 +63,19 @@ def launch_log(
     start_unix_s: float,
     events: list[tuple[float, str]],
     kills: dict[int, list[float]] | None = None,
+    idle_faults: list[tuple[float, str]] | None = None,
 ) -> MissionLog:
     """The mission log of a networked run of ``world.sc`` whose drones wrote into
     ``nodes_dir``, step 0 at ``start_unix_s``; ``events`` (s after step 0, what) are launch's
-    faults and ``kills`` the unix times it SIGKILLed each drone."""
+    faults, ``idle_faults`` those that found nothing to do, and ``kills`` the unix times it
+    SIGKILLed each drone."""
     sc = world.sc
     n, S, dt = sc.drones, sc.steps + 1, sc.dt_s
     log = world_log(world)
     ins_aligned_in_outages(log, world.drift)
     log.detector_params = dict(world.protocol.detector_params)
     log.events = list(events)
+    log.idle_faults = list(idle_faults or [])
     log.in_flight_s = dt  # the step before a fault: its record was on its way when it landed
     log.raft_messages = np.zeros(S, int)
     log.report_messages = np.zeros(S, int)

@@ -223,9 +223,11 @@ def _check_fault_fields(f: FaultConfig, where: str) -> None:
     _unused(f, _FAULT_FIELDS, f.kind, where)
 
 
-def _windows_meet(a0: float, a1: float | None, b0: float, b1: float | None) -> bool:
-    """Whether [a0, a1) and [b0, b1) share a moment (None: open to the mission's end)."""
-    return (a1 is None or b0 < a1) and (b1 is None or a0 < b1)
+def _overlap(a: SpoofConfig | OutageConfig, b: SpoofConfig | OutageConfig) -> list[int]:
+    """The drones ``a`` and ``b`` both act on at some moment ([start_s, end_s), None: open to
+    the mission's end); [] if none."""
+    meet = (a.end_s is None or b.start_s < a.end_s) and (b.end_s is None or a.start_s < b.end_s)
+    return sorted(set(a.drones) & set(b.drones)) if meet else []
 
 
 def _span(start: float, end: float | None) -> str:
@@ -239,27 +241,17 @@ def _check_overlaps(spoofs: list[SpoofConfig], outages: list[OutageConfig]) -> N
     an outage that ends when the spoof starts."""
     # an `enlarge` spoof leaves GNSS alone (it lengthens the ranges): it replaces no position
     # spoof and needs no fix, so it may overlap both
-    for k, s in enumerate(spoofs):
-        if s.kind == "enlarge":
-            continue
-        for j in range(k):
-            t = spoofs[j]
-            if t.kind == "enlarge":
-                continue
-            if (both := sorted(set(s.drones) & set(t.drones))) and _windows_meet(
-                s.start_s, s.end_s, t.start_s, t.end_s
-            ):
+    position = [(k, s) for k, s in enumerate(spoofs) if s.kind != "enlarge"]
+    for k, s in position:
+        for j, t in position:
+            if j < k and (both := _overlap(s, t)):
                 raise ValueError(
                     f"spoof[{k}].drones: drone {_ids(both)} is spoofed by spoof[{j}] "
                     f"{_span(t.start_s, t.end_s)} already (one spoof of a drone at a time)"
                 )
     for k, o in enumerate(outages):
-        for j, s in enumerate(spoofs):
-            if s.kind == "enlarge":
-                continue
-            if (both := sorted(set(o.drones) & set(s.drones))) and _windows_meet(
-                o.start_s, o.end_s, s.start_s, s.end_s
-            ):
+        for j, s in position:
+            if both := _overlap(o, s):
                 raise ValueError(
                     f"outage[{k}].drones: drone {_ids(both)} has no GNSS fix {_span(o.start_s, o.end_s)} "
                     f"while spoof[{j}] spoofs it {_span(s.start_s, s.end_s)}: a drone without a fix "

@@ -372,3 +372,35 @@ def test_launch_refuses_another_kind_of_results_folder(ref):
         ["launch", "--scenario", "tiny.toml", "--out", "ref"], "--out ref is a sweep folder", ref.parent
     )
     assert "a networked run writes a folder of its own" in line
+
+
+@pytest.fixture(scope="module")
+def a_mission(tmp_path_factory):
+    out = tmp_path_factory.mktemp("m") / "m"
+    (out.parent / "tiny.toml").write_text('name = "tiny"\ndrones = 5\nduration_s = 2\n')
+    r = CliRunner().invoke(main, ["mission", "--scenario", str(out.parent / "tiny.toml"), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+@pytest.mark.parametrize(
+    ("damage", "said"),
+    [
+        # a summary without its fields: the report passed its checks on defaults (0, "ok")
+        (lambda m: (m / "summary.json").write_text("{}"), "m/summary.json lacks committed_steps"),
+        (lambda m: (m / "summary.json").write_text("[]"), "m/summary.json: not a JSON object"),
+        # a row cut short where the rows still come in whole steps: a traceback before
+        (
+            lambda m: (m / "steps.csv").write_text(
+                "\n".join((m / "steps.csv").read_text().splitlines()[:11])[:-60] + "\n"
+            ),
+            "m/steps.csv, row 10: cut short or not a number",
+        ),
+    ],
+)
+def test_a_damaged_mission_folder_is_one_line_for_report(a_mission, tmp_path, monkeypatch, damage, said):
+    """Found by a new-user review of report, record and figure."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(a_mission, tmp_path / "m")
+    damage(tmp_path / "m")
+    fails_cleanly(["report", "m"], said, tmp_path)

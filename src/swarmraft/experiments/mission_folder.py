@@ -59,6 +59,7 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
     except (json.JSONDecodeError, ValidationError, TypeError, UnicodeDecodeError) as exc:
         why = one_line(exc, "", Scenario) if isinstance(exc, ValidationError) else str(exc)
         raise ConfigError(f"{option}: {folder / name}: unreadable ({why})") from None
+    _check_summary(summary, folder / "summary.json", option)
     with (folder / "steps.csv").open(newline="") as fh:
         reader = csv.DictReader(fh)
         wanted = STEP_COLUMNS + ((MEMBER_COLUMN,) if scenario.dynamic else ())
@@ -74,7 +75,16 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
     def col(name: str, kind: type = float) -> np.ndarray:
         if kind is bool:
             return np.array([r[name] == "1" for r in rows], bool).reshape(S, n)
-        return np.array([kind(r[name]) for r in rows]).reshape(S, n)
+        values = []
+        for i, r in enumerate(rows):
+            try:
+                values.append(kind(r[name]))
+            except (TypeError, ValueError):  # a row cut short (None) or text where a number goes
+                raise ConfigError(
+                    f"{option}: {folder}/steps.csv, row {i + 1}: cut short or not a number in column "
+                    f"{name} ({r[name]!r})"
+                ) from None
+        return np.array(values).reshape(S, n)
 
     def xyz(prefix: str) -> np.ndarray:
         return np.stack([col(f"{prefix}_{a}") for a in "xyz"], axis=2)
@@ -121,6 +131,37 @@ def read_mission(folder: str | Path, option: str = "DIR") -> MissionFolder:
         "snapshot_bound": col("snapshot_bound"),
     }
     return MissionFolder(folder, log, errors, summary)
+
+
+#: what every summary.json this version reads has (a report's checks read them: a summary
+#: without them would pass its checks on defaults); fields added later are read with .get
+SUMMARY_FIELDS = (
+    "committed_steps",
+    "skipped_steps",
+    "steps",
+    "records_identical_on_all_nodes",
+    "wrong_partition_step_count",
+    "honest_false_positive_rate",
+    "detections",
+    "integrity",
+    "events",
+)
+
+
+def _check_summary(summary: object, path: Path, option: str) -> None:
+    """A one-line ConfigError unless ``summary`` is an object with `SUMMARY_FIELDS` (and an
+    integrity object with its misleading count)."""
+    if not isinstance(summary, dict):
+        raise ConfigError(f"{option}: {path}: not a JSON object (a mission's summary is one)")
+    lacks = [k for k in SUMMARY_FIELDS if k not in summary]
+    integrity = summary.get("integrity")
+    if isinstance(integrity, dict) and "misleading_drone_steps" not in integrity:
+        lacks.append("integrity.misleading_drone_steps")
+    if lacks:
+        raise ConfigError(
+            f"{option}: {path} lacks {', '.join(lacks)}: not a summary swarmraft wrote, or cut "
+            "(run the mission again)"
+        )
 
 
 def _event(text: str) -> tuple[float, str]:

@@ -217,3 +217,21 @@ def test_a_reflection_about_collinear_pivots_is_an_error_not_nan_reports():
     timeline = AttackTimeline.build(np.random.default_rng(1), [coll], [])
     with pytest.raises(ValueError, match=r"collusion: pivots 1, 2, 3 are collinear at t = 1 s"):
         timeline.gnss(1.0, truth, truth)
+
+
+def test_the_live_event_log_does_not_clear_a_flagged_drone_whose_report_was_lost(spoofed):
+    """A spoofed drone missing from one record (its report lost) read 'cleared', then 'flagged'
+    again at the next step, though it was flagged in every step it was judged (found by a
+    new-user review of the live view and `record`)."""
+    from swarmraft.viz.live import step_events
+
+    log = spoofed
+    k = int(np.flatnonzero(log.committed & log.committed[np.r_[1 : len(log.t), 0]] & log.faulty[:, 2])[3]) + 1
+    kept = log.faulty[k, 2], log.missing[k, 2]
+    log.faulty[k, 2], log.missing[k, 2] = False, True  # drone 3's report lost at step k
+    try:
+        assert log.faulty[k - 1, 2] and log.faulty[k + 1, 2] and log.committed[k] and log.committed[k + 1]
+        assert not any("drone 3 cleared" in text for _, text in step_events(log, k))
+        assert not any("drone 3 flagged" in text for _, text in step_events(log, k + 1))
+    finally:
+        log.faulty[k, 2], log.missing[k, 2] = kept

@@ -144,6 +144,22 @@ def _error(a: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a - truth, axis=1)
 
 
+def _last_flags(log: MissionLog, k: int) -> np.ndarray:
+    """(n,) each drone's flag in the last committed record before step k in which it was
+    present (not missing); False where there is none."""
+    flags = np.zeros(log.faulty.shape[1], bool)
+    open_ = np.ones_like(flags)
+    for j in range(k - 1, -1, -1):
+        if not log.committed[j]:
+            continue
+        seen = open_ & ~log.missing[j]
+        flags[seen] = log.faulty[j, seen]
+        open_ &= ~seen
+        if not open_.any():
+            break
+    return flags
+
+
 def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
     """(level, text) of step k: the mission's events since step k-1 (crashes, partitions,
     loss), a new leader (of a record, against the previous record's), drones flagged (and
@@ -163,8 +179,11 @@ def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
         return out
     if k and not log.committed[k - 1]:
         out.append(("INFO", f"records again from step {k}"))
-    before = log.faulty[k - 1] & log.committed[k - 1] if k else np.zeros_like(log.faulty[k])
-    for i in np.flatnonzero(log.faulty[k] & ~before):
+    # a drone missing from a record (its report lost) keeps the flag it had when last judged:
+    # neither 'cleared' there nor 'flagged' again after
+    before = _last_flags(log, k)
+    present = ~log.missing[k]
+    for i in np.flatnonzero(log.faulty[k] & ~before & present):
         v, r = log.verified[k, i], log.reported[k, i]
         if np.isfinite(v).all() and np.isfinite(r).all():
             out.append(
@@ -173,7 +192,7 @@ def step_events(log: MissionLog, k: int) -> list[tuple[str, str]]:
         else:
             out.append(("ERROR", f"drone {i + 1} flagged"))
     if k and log.committed[k - 1]:
-        for i in np.flatnonzero(~log.faulty[k] & log.faulty[k - 1]):
+        for i in np.flatnonzero(~log.faulty[k] & before & present):
             out.append(("INFO", f"drone {i + 1} cleared"))
     return out
 

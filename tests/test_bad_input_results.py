@@ -404,3 +404,11 @@ def test_a_damaged_mission_folder_is_one_line_for_report(a_mission, tmp_path, mo
     shutil.copytree(a_mission, tmp_path / "m")
     damage(tmp_path / "m")
     fails_cleanly(["report", "m"], said, tmp_path)
+
+
+def test_view_refuses_a_file_that_is_not_a_recording(cwd):
+    """`view junk.rrd` served an empty viewer and waited, without a word (found by a new-user
+    review): a rerun recording starts with its magic bytes."""
+    (cwd / "junk.rrd").write_text("junk")
+    line = fails_cleanly(["view", "junk.rrd"], "junk.rrd is not a rerun recording", cwd)
+    assert "RRF" in line

@@ -600,3 +600,18 @@ def test_a_node_refuses_a_swarm_file_written_for_other_code(tmp_path):
     path.write_text(re.sub(r"(?m)^code_sha256 = .*\n", "", text))
     assert load_swarm(path).code_sha256 is None
     DroneHost(load_swarm(path), 1)
+
+
+def test_the_warm_up_runs_on_a_scenario_of_exact_data():
+    """`launch --scenario paper-recovery-6-2` (exact GNSS and ranges, sigma 0) stopped at
+    'error: Singular matrix': the warm-up's joint estimate inverted a zero covariance (found
+    by a new-user review)."""
+    from swarmraft.experiments.mission import load_scenario
+    from swarmraft.net.node import warm_up_detector
+    from swarmraft.sim.scenario import find_scenario
+    from swarmraft.sim.sensing import ScenarioWorld
+
+    sc = load_scenario(find_scenario("paper-recovery-6-2"))
+    assert sc.gnss.sigma_h == 0
+    records = warm_up_detector(ScenarioWorld.build(sc))
+    assert len(records) == 2

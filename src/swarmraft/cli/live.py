@@ -202,13 +202,13 @@ def view(rrd: Path, port: int) -> None:
         raise click.BadParameter(f"no file {rrd}", param_hint="RRD")
     if rrd.suffix.lower() != ".rrd":
         raise click.BadParameter(f"{rrd} is not an .rrd recording", param_hint="RRD")
+    vl.require_rerun("swarmraft view")
     with rrd.open("rb") as fh:  # a recording starts with rerun's magic, RRF and a version digit
         head = fh.read(4)
     if not head.startswith(b"RRF"):
         raise click.BadParameter(
             f"{rrd} is not a rerun recording (it starts with {head!r}, not RRF)", param_hint="RRD"
         )
-    vl.require_rerun("swarmraft view")
     server = vl.ViewerServer(port=port, rrd=rrd)
     server.start()
     try:

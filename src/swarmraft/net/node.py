@@ -227,12 +227,14 @@ def warm_up_detector(world: ScenarioWorld) -> list[StepRecord]:
     at = world.traj.positions[0][None]
     apart = np.linalg.norm(at[:, :, None] - at[:, None], axis=3)
     trusted = np.arange(n)[None] > 0
+    # (exact data, sigma 0, has no information matrix: the warm-up only loads the code, so a
+    # floor of 1 mm stands in for it)
     trusted_estimate(
         at,
         apart,
         trusted,
-        gnss_covariance(*c.gnss_sigma),
-        c.range_sigma,
+        gnss_covariance(*(max(s, 1e-3) for s in c.gnss_sigma)),
+        max(c.range_sigma, 1e-3),
         x0=at,
         prior=at,
         prior_sigma=c.prior_sigma,

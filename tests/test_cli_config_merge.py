@@ -129,3 +129,24 @@ def test_sweep_config_from_python_is_not_a_click_command():
     example = Path(__file__).parent.parent / "docs" / "examples" / "collusion-30m.toml"
     config = sweep_config("reference", example, "12", "4", False, None, None, {})
     assert config.preset == "realistic"
+
+
+def test_the_compare_table_shows_undetermined_drones_as_the_sweep_table_does():
+    """A detector that places no attacked drone (every verdict degenerate) showed att '-' and
+    det 100 % with nothing saying why: the sweep's table has an und column, compare's had
+    none (found by a new-user review)."""
+    import numpy as np
+    from rich.console import Console
+
+    from swarmraft.cli.tables import compare_table
+
+    row = {"attack": ["jump"], "detector": ["joint"], "n": [5], "f": [2], "recovered_mean": [float("nan")]}
+    row |= {k: [1.0] for k in ("honest_mean", "honest_baseline_mean", "attacked_efficiency")}
+    row |= {k: [1.0] for k in ("detection_rate", "identification_rate")}
+    row |= {"false_positive_rate": [0.0], "status_unidentifiable": [0.0], "undetermined_rate": [0.4]}
+    table, legend = compare_table({k: np.asarray(v) for k, v in row.items()}, "t")
+    console = Console(record=True, width=120)
+    console.print(table)
+    lines = [ln for ln in console.export_text().splitlines() if ln.strip() and not ln.startswith("─")]
+    assert lines[-2].split()[-1] == "und" and lines[-1].split()[-1] == "40.0%"
+    assert "und: share of the drones left without a position" in legend

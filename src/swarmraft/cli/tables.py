@@ -91,11 +91,27 @@ COMPARE_LEGEND = (
 
 
 def compare_table(table: Mapping[str, np.ndarray], title: str) -> tuple[Table, str]:
-    """Detectors on identical trials: one row per attack, detector and (n, f)."""
+    """Detectors on identical trials: one row per attack, detector and (n, f); with a column
+    of undetermined drones where any row has them (its statistics leave them out), as the
+    sweep's table."""
     t = _table(title)
     _names(t, "attack", table["attack"])
     _names(t, "detector", table["detector"])
-    for col in ("n", "f", "att", "hon", "GNSS", "eff", "det", "FP", "id", "unid"):
+    und = np.asarray(table.get("undetermined_rate", np.zeros(len(table["n"]))), float)
+    shown = bool((und > 0).any())
+    for col in (
+        "n",
+        "f",
+        "att",
+        "hon",
+        "GNSS",
+        "eff",
+        "det",
+        "FP",
+        "id",
+        "unid",
+        *(("und",) if shown else ()),
+    ):
         t.add_column(col, justify="right", no_wrap=True)
     for i in range(len(table["n"])):
         eff = float(table["attacked_efficiency"][i])
@@ -112,8 +128,9 @@ def compare_table(table: Mapping[str, np.ndarray], title: str) -> tuple[Table, s
             _pct(table["false_positive_rate"][i]),
             _pct(table["identification_rate"][i]),
             _pct(table["status_unidentifiable"][i]),
+            *([_pct(und[i])] if shown else []),
         )
-    return t, COMPARE_LEGEND
+    return t, COMPARE_LEGEND + (UNDETERMINED_LEGEND if shown else "")
 
 
 def check_legend(max_z: float, max_gap_m: float) -> str:

@@ -412,3 +412,13 @@ def test_view_refuses_a_file_that_is_not_a_recording(cwd):
     (cwd / "junk.rrd").write_text("junk")
     line = fails_cleanly(["view", "junk.rrd"], "junk.rrd is not a rerun recording", cwd)
     assert "RRF" in line
+
+
+def test_a_mission_folder_with_a_file_gone_says_which(a_mission, tmp_path, monkeypatch):
+    """report said only 'is not a results folder' of a mission folder whose scenario.json was
+    gone (found by a new-user review)."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(a_mission, tmp_path / "m")
+    (tmp_path / "m" / "scenario.json").unlink()
+    line = fails_cleanly(["report", "m"], "is not a results folder", tmp_path)
+    assert "but no scenario.json" in line

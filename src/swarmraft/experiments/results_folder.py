@@ -62,6 +62,12 @@ def require_kind(path: str | Path, wanted: tuple[str, ...], option: str, use: st
         raise ConfigError(f"{option}: {path} is a {kind} folder; {use} needs {needs}")
     inside = sorted(p.name for p in path.iterdir() if folder_kind(p) in wanted)
     hint = f"; these subfolders are: {', '.join(inside)}" if inside else ""
+    from swarmraft.experiments.mission_folder import FILES
+
+    have = [f for f in FILES if (path / f).is_file()]
+    if have and ("mission" in wanted or "launch" in wanted):  # a mission folder with a file gone
+        gone = [f for f in FILES if f not in have]
+        hint += f"; it has a mission's {', '.join(have)} but no {', '.join(gone)}"
     raise ConfigError(f"{option}: {path} is not a results folder: {use} needs {needs}{hint}")
 
 

@@ -232,7 +232,7 @@ def test_a_fault_that_finds_nothing_to_do_is_idle_not_an_event(tmp_path):
     """As in the simulator (idle_faults): a crash-leader with no leader known, a fault the
     processes cannot take, a relay fault without a relay did nothing, and listed as events
     they excused the skipped steps after them in the launch summary (found by a review)."""
-    from swarmraft.net.localswarm import Idle
+    from swarmraft.sim.mission import Idle
 
     run = swarm_with(tmp_path, [{"kind": "crash-leader", "at_s": 3}, {"kind": "transfer-leader", "at_s": 4}])
     role_events(run, 2, ("candidate", 4))

@@ -26,6 +26,7 @@ from swarmraft.net.launch import (
 from swarmraft.net.node import warm_up_detector
 from swarmraft.net.relay import RelayThread
 from swarmraft.net.swarmfile import drone_file
+from swarmraft.sim.mission import Idle  # a fault that found nothing to do (as in the simulator)
 from swarmraft.sim.network import LinkModel
 from swarmraft.sim.scenario import Scenario
 from swarmraft.sim.sensing import ScenarioWorld
@@ -50,11 +51,6 @@ def needs_relay(sc: Scenario) -> bool:
 
 #: seconds the drones have, all together, to stop after launch's SIGTERM before a SIGKILL
 STOP_WAIT_S = 10.0
-
-
-class Idle(str):
-    """What an action says when it found nothing to do (no leader to crash, a fault the
-    processes cannot take): listed as an idle fault, not as an event."""
 
 
 @dataclass

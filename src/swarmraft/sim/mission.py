@@ -31,6 +31,12 @@ from swarmraft.world.ins import InsDrift, ins_sigma
 from swarmraft.world.motion import Trajectory
 
 
+class Idle(str):
+    """What a fault says when it found nothing to do (a restart of a drone that is up, no
+    leader to crash): an idle fault, not an event, in the simulator and on processes
+    (`net.localswarm`)."""
+
+
 @dataclass
 class MissionLog:
     """Per step k (S steps) and drone i (n drones)."""
@@ -435,7 +441,7 @@ class Mission:
                 if node.lead_transferee is not None:
                     return
                 if any(v != lead and v not in self._leaving and c.alive(v) for v in conf.voters):
-                    self.log.events.append((now / 1000, self._transfer(None, leaving=True)[0]))
+                    self.log.events.append((now / 1000, self._transfer(None, leaving=True)))
                     return
         caught_up = [lr for lr in conf.learners if lr in node.prs and node.prs[lr].match + gap >= last]
         silent = {i: (now - t) / 1000 for i, t in self._heard.items()}
@@ -589,78 +595,79 @@ class Mission:
 
     # -- faults -----------------------------------------------------------------------------
     def _fault(self, f) -> None:  # noqa: ANN001 (a FaultConfig)
+        """Apply fault ``f`` and log what it did: an event, or, for a fault that found nothing
+        to do (`Idle`), an idle fault, which excuses no skipped step
+        (`experiments.mission.skipped_causes`)."""
+        what = self._act(f)
+        done = self.log.idle_faults if isinstance(what, Idle) else self.log.events
+        done.append((self.cluster.now / 1000, str(what)))
+
+    def _act(self, f) -> str:  # noqa: ANN001 (a FaultConfig)
+        """Fault ``f`` applied; what it did (an `Idle` text where it found nothing to do)."""
         c = self.cluster
-        now = c.now / 1000
-        # a fault that finds nothing to do is said (idle_faults), not an event: an event
-        # excuses the skipped steps after it (`experiments.mission.skipped_causes`)
-        idle = self.log.idle_faults
         if f.kind == "crash":
-            if c.alive(f.drone):
-                c.crash(f.drone)
-                self.drones[f.drone - 1] = self._new_drone(f.drone - 1)  # volatile state lost
-                self.log.events.append((now, f"drone {f.drone} crashed"))
-            else:
-                idle.append((now, f"crash: drone {f.drone} is down already, nothing done"))
+            if not c.alive(f.drone):
+                return Idle(f"crash: drone {f.drone} is down already, nothing done")
+            c.crash(f.drone)
+            self.drones[f.drone - 1] = self._new_drone(f.drone - 1)  # volatile state lost
+            return f"drone {f.drone} crashed"
         elif f.kind == "crash-leader":
             lead = c.leader()
-            if lead is not None:
-                c.crash(lead)
-                self.drones[lead - 1] = self._new_drone(lead - 1)
-                self.log.events.append((now, f"leader {lead} crashed"))
-            else:
-                idle.append((now, "crash-leader: no leader, nothing crashed"))
+            if lead is None:
+                return Idle("crash-leader: no leader, nothing crashed")
+            c.crash(lead)
+            self.drones[lead - 1] = self._new_drone(lead - 1)
+            return f"leader {lead} crashed"
         elif f.kind == "transfer-leader":
-            what, acted = self._transfer(f.drone)
-            (self.log.events if acted else idle).append((now, what))
+            return self._transfer(f.drone)
         elif f.kind == "restart":
-            if not c.alive(f.drone):
-                c.restart(f.drone)
-                self._reread_log(f.drone)
-                self.log.events.append((now, f"drone {f.drone} restarted"))
-            else:
-                idle.append((now, f"restart: drone {f.drone} is up, nothing done"))
+            if c.alive(f.drone):
+                return Idle(f"restart: drone {f.drone} is up, nothing done")
+            c.restart(f.drone)
+            self._reread_log(f.drone)
+            return f"drone {f.drone} restarted"
         elif f.kind == "pause":
             who = [f.drone] if f.drone is not None else list(c.ids)
             for d in who:
                 c.pause(d, f.for_s * 1000)
             name = f"drone {f.drone}" if f.drone is not None else "every drone"
-            self.log.events.append((now, f"{name} paused for {f.for_s:g} s"))
+            return f"{name} paused for {f.for_s:g} s"
         elif f.kind == "partition":
             c.partition(*f.groups)
-            self.log.events.append((now, f"partition {f.groups}"))
+            return f"partition {f.groups}"
         elif f.kind == "lying-leader":
             self._lying = True
             self.liar = c.leader()
             who = f"leader {self.liar}" if self.liar is not None else "the next leader"
-            self.log.events.append((now, f"{who} compromised: lies ({f.mode} drone {f.drone})"))
+            return f"{who} compromised: lies ({f.mode} drone {f.drone})"
         elif f.kind == "join":
             if not c.alive(f.drone):
                 c.restart(f.drone)  # a new node, with empty storage: not a member yet
             self.swarm.add(f.drone)
             self._heard[f.drone] = c.now  # it announces itself: heard now
-            self.log.events.append((now, f"drone {f.drone} joins the swarm"))
+            return f"drone {f.drone} joins the swarm"
         elif f.kind == "leave":
             self.swarm.discard(f.drone)
             self._leaving.add(f.drone)
             for d in self.drones:  # the leader no longer waits for its reports
                 d.forget(f.drone - 1)
-            self.log.events.append((now, f"drone {f.drone} leaves the swarm"))
+            return f"drone {f.drone} leaves the swarm"
         elif f.kind == "heal":
             c.heal()
-            self.log.events.append((now, "network healed"))
+            return "network healed"
         else:
             c.set_loss(f.value)
-            self.log.events.append((now, f"loss set to {f.value:.0%}"))
+            return f"loss set to {f.value:.0%}"
 
-    def _transfer(self, to: int | None, leaving: bool = False) -> tuple[str, bool]:
+    def _transfer(self, to: int | None, leaving: bool = False) -> str:
         """The leader hands over to drone ``to``, or (None) to the voter whose log is the most
         complete (highest match index; the lowest id on a tie) and that stays in the swarm.
-        Returns the event's text (``leaving``: the leader leaves the swarm) and whether a
-        transfer began (False: nothing done, and the text says why)."""
+        Returns the event's text (``leaving``: the leader leaves the swarm), an `Idle` one
+        saying why where nothing was handed over."""
         c = self.cluster
         lead = c.leader()
         if lead is None:
-            return "transfer-leader: no leader, nothing handed over", False
+            return Idle("transfer-leader: no leader, nothing handed over")
         node = c.nodes[lead]
         assert node is not None
         if to is None:
@@ -668,14 +675,14 @@ class Mission:
             if leaving:  # hand over to a drone that can take it
                 others = [v for v in others if c.alive(v)]
             if not others:
-                return f"transfer-leader: leader {lead} is the only voter", False
+                return Idle(f"transfer-leader: leader {lead} is the only voter")
             to = max(others, key=lambda v: (node.prs[v].match, -v))
         if to == lead:
-            return f"transfer-leader: drone {to} leads already", False
+            return Idle(f"transfer-leader: drone {to} leads already")
         if not c.alive(to):
-            return f"transfer-leader: drone {to} is down, leader {lead} keeps leading", False
+            return Idle(f"transfer-leader: drone {to} is down, leader {lead} keeps leading")
         c.transfer_leader(to)
-        return f"leader {lead} hands over to drone {to}" + (" (it leaves the swarm)" if leaving else ""), True
+        return f"leader {lead} hands over to drone {to}" + (" (it leaves the swarm)" if leaving else "")
 
     # -- running ----------------------------------------------------------------------------
     def run(self, progress: Callable[[int], None] | None = None) -> MissionLog:

@@ -389,6 +389,12 @@ def a_mission(tmp_path_factory):
         # a summary without its fields: the report passed its checks on defaults (0, "ok")
         (lambda m: (m / "summary.json").write_text("{}"), "m/summary.json lacks committed_steps"),
         (lambda m: (m / "summary.json").write_text("[]"), "m/summary.json: not a JSON object"),
+        (
+            lambda m: (m / "summary.json").write_text(
+                (m / "summary.json").read_text().replace('"integrity": {', '"integrity": null, "x": {')
+            ),
+            "m/summary.json lacks integrity.misleading_drone_steps",
+        ),
         # a row cut short where the rows still come in whole steps: a traceback before
         (
             lambda m: (m / "steps.csv").write_text(

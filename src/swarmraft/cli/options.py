@@ -178,8 +178,8 @@ def typed(name: str) -> bool:
 
 def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, extra: dict[str, Any]):
     """A validated SweepConfig from a preset, an optional TOML file and command-line flags
-    (flags override the file, the file overrides the preset; a --preset left at its default
-    does not override the file's)."""
+    (flags typed override the file, the file overrides the preset; an option left at its
+    default, --preset, --n or --trials, does not override what the file sets)."""
     from swarmraft.experiments import ConfigError, build_config
     from swarmraft.experiments.config import merged, read_toml
 
@@ -189,6 +189,8 @@ def sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, ex
         file_preset = settings.pop("preset", None)
         if file_preset is not None and not typed("preset"):
             preset = file_preset
+        n_text = None if "n" in settings and not typed("n_text") else n_text
+        trials = None if "trials" in settings and not typed("trials") else trials
     overrides = {
         "n": swarm_sizes(n_text),
         "f": attacker_counts(f_text),

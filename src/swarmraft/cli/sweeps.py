@@ -477,15 +477,9 @@ def compare_cmd(
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     from swarmraft.experiments.config import attack_names
 
-    if config_file is not None:  # what the file sets, no default of compare's overrides
-        from swarmraft.experiments.config import read_toml
-
-        sets = read_toml(config_file, "--config")
-        n_text = None if "n" in sets and not typed("n_text") else n_text
-        trials = None if "trials" in sets and not typed("trials") else trials
-        if isinstance(sets.get("attack"), dict) and "name" in sets["attack"] and not typed("attacks"):
-            attacks = sets["attack"]["name"]
     config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    if config_file is not None and not typed("attacks"):
+        attacks = config.attack.name  # the file's, or the preset's (jump, compare's default too)
     atks = name_list(attacks, "--attacks", attack_names(), "attack")
     out = out or Path("results") / f"compare-{config.preset}"
     check_out(out)

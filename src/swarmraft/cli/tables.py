@@ -27,14 +27,14 @@ def _names(t: Table, header: str, values: Sequence[object]) -> None:
     t.add_column(header, no_wrap=True, min_width=max([len(header), *(len(str(v)) for v in values)]))
 
 
-def _pct(v: float) -> str:
-    return "-" if np.isnan(v) else f"{v:.1%}"
-
-
 def _num(v: float, spec: str) -> str:
     """``v`` formatted by ``spec``; ``-`` where it does not exist (nan), as every table marks it."""
     v = float(v)
     return "-" if np.isnan(v) else format(v, spec)
+
+
+def _pct(v: float) -> str:
+    return _num(v, ".1%")
 
 
 SUMMARY_LEGEND = (

@@ -326,10 +326,12 @@ def honest_cells(log: MissionLog, errors: dict[str, np.ndarray]) -> np.ndarray:
     return up & np.isfinite(errors["swarmraft"]) & np.isfinite(errors["gnss"])
 
 
-def _after_faults(log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndarray) -> list[dict[str, Any]]:
+def _after_faults(
+    log: MissionLog, errors: dict[str, np.ndarray], wrong: np.ndarray, cells: np.ndarray
+) -> list[dict[str, Any]]:
     """Per fault event, from it to the next one (or the mission's end): the honest drones'
-    SwarmRaft error against their raw GNSS, skipped and wrong-partition steps."""
-    cells = honest_cells(log, errors)
+    SwarmRaft error against their raw GNSS over ``cells`` (`honest_cells`), skipped and
+    wrong-partition steps."""
     S = len(log.t)
     times = [t for t, _ in log.events] + [float(log.t[-1]) + log.scenario.dt_s]
     out = []
@@ -451,7 +453,7 @@ def summarize(log: MissionLog, errors: dict[str, np.ndarray]) -> dict[str, Any]:
         "wrong_partition_time_ranges_s": time_ranges(log.t, wrong),
         "wrong_partition_steps": wrong_steps,
         "detections": detections,
-        "after_faults": _after_faults(log, errors, wrong),
+        "after_faults": _after_faults(log, errors, wrong, cells),
         "outages": outages,
         # None (JSON null) where no step committed: no latency to take a median of
         "latency_ms_median": _stat(log.latency_ms, np.median, 2),

@@ -155,7 +155,7 @@ def _check_summary(summary: object, path: Path, option: str) -> None:
         raise ConfigError(f"{option}: {path}: not a JSON object (a mission's summary is one)")
     lacks = [k for k in SUMMARY_FIELDS if k not in summary]
     integrity = summary.get("integrity")
-    if isinstance(integrity, dict) and "misleading_drone_steps" not in integrity:
+    if "integrity" in summary and not (isinstance(integrity, dict) and "misleading_drone_steps" in integrity):
         lacks.append("integrity.misleading_drone_steps")
     if lacks:
         raise ConfigError(

@@ -215,14 +215,6 @@ def _unused(model: BaseModel, uses: dict[str, tuple[str, ...]], kind: str, where
             raise ValueError(f"{where}.{name}: a {kind} {noun} does not use it (only {', '.join(kinds)})")
 
 
-def _check_spoof_fields(s: SpoofConfig, where: str) -> None:
-    _unused(s, _SPOOF_FIELDS, s.kind, where)
-
-
-def _check_fault_fields(f: FaultConfig, where: str) -> None:
-    _unused(f, _FAULT_FIELDS, f.kind, where)
-
-
 def _overlap(a: SpoofConfig | OutageConfig, b: SpoofConfig | OutageConfig) -> list[int]:
     """The drones ``a`` and ``b`` both act on at some moment ([start_s, end_s), None: open to
     the mission's end); [] if none."""
@@ -313,14 +305,14 @@ class Scenario(_Strict):
                 )
             if s.kind == "collusion" and not 1 <= len(s.pivots) <= 3:
                 raise ValueError(f"spoof[{k}].pivots: collusion needs 1 to 3 pivot drones")
-            _check_spoof_fields(s, f"spoof[{k}]")
+            _unused(s, _SPOOF_FIELDS, s.kind, f"spoof[{k}]")
         for k, o in enumerate(self.outage):
             timed(o.start_s, o.end_s, f"outage[{k}]")
             check(o.drones, f"outage[{k}].drones")
         _check_overlaps(self.spoof, self.outage)
         for k, f in enumerate(self.fault):
             timed(f.at_s, None, f"fault[{k}]", "at_s")
-            _check_fault_fields(f, f"fault[{k}]")
+            _unused(f, _FAULT_FIELDS, f.kind, f"fault[{k}]")
             if f.kind in ("crash", "restart", "lying-leader", "join", "leave") and f.drone is None:
                 raise ValueError(f"fault[{k}].drone: {f.kind} needs a drone")
             if f.kind == "lying-leader" and f.mode is None:

@@ -60,6 +60,8 @@ def test_no_ok_verdict_is_far_off(det, geometry):
             limit = np.maximum(limit, np.hypot(v.hpl, v.vpl))
             assert not np.isnan(err[ok]).any()
             assert (err[ok] <= limit[ok]).all(), (n, f, err[ok].max())
+            # an ok verdict's levels are within the alert limits (70 m each way by default)
+            assert (v.hpl[ok] <= 70.0).all() and (v.vpl[ok] <= 70.0).all(), (n, f)
             seen_ok += ok.sum()
     if geometry == "cube":
         assert seen_ok > 10  # the test is not passed by never saying ok
@@ -161,6 +163,71 @@ def _realistic_trials(n, f, trials):
         d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, n, f, trial // 1000)), 1000, n, f)
         picked.append([a[trial % 1000] for a in (d.truth, d.reported, d.ranges, d.attackers)])
     return (np.stack(c) for c in zip(*picked, strict=True))
+
+
+def test_a_verdict_whose_levels_exceed_the_alert_limit_withholds_those_drones():
+    """(9, 4), realistic, trial 10,646 (past the tables' 10,000: found at 30,000): `joint`
+    trusted spoofed drone 9 (42 m off) and flagged honest drone 2. The true set fails its own
+    residual test there (chi-square 189), so no rival showed the doubt, and the wrong set
+    passed with levels of 124-186 m, which covered flagged drones 6 and 7 placed 111 and 143 m
+    off: an ok verdict, over 100 m off and of no use. With the alert limits (70 m each way) a
+    drone whose level is above them is degenerate, its position withheld (nan: no prior) and
+    its levels inf; the verdict is not ok."""
+    truth, rep, rng_, _ = _realistic_trials(9, 4, (10646,))
+    batch = SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1)
+    off = verify_batch(batch, "joint", alert_limit_h=None, alert_limit_v=None)
+    err = np.linalg.norm(off.positions - truth, axis=2)
+    assert off.status[0] == "ok" and (err[0] > 100).sum() == 2  # the verdict as it was found
+    assert not off.diagnostics["beyond_alert_limit"].any()
+    v = verify_batch(batch, "joint")
+    beyond = v.diagnostics["beyond_alert_limit"][0]
+    assert v.status[0] != "ok" and beyond[err[0] > 100].all()
+    assert (v.drone_status[0, beyond] == "degenerate").all()
+    assert np.isnan(v.positions[0, beyond]).all() and np.isinf(v.hpl[0, beyond]).all()
+    err = np.linalg.norm(v.positions - truth, axis=2)
+    assert not ((v.status == "ok")[:, None] & (err > 100)).any()
+
+
+def test_the_alert_limit_gives_a_drone_its_prior_and_only_where_its_level_is_above_it():
+    """A limit just below one drone's level withholds that drone (its prior where it has one)
+    and no other; a limit above every level changes nothing."""
+    truth, rep, ranges, _ = noisy_swarm("cube", 9, 0, 1, seed=3)
+    prior = truth + 0.5
+    batch = SnapshotBatch(rep, ranges, (1.5, 3.0), 0.1, prior=prior, prior_sigma=1.0)
+    free = verify_batch(batch, "joint", alert_limit_h=None, alert_limit_v=None)
+    assert free.status[0] == "ok"
+    for level, key in ((free.hpl[0], "alert_limit_h"), (free.vpl[0], "alert_limit_v")):
+        top = np.sort(level)
+        limit = float(top[-1] + top[-2]) / 2  # between the largest level and the next
+        other = "alert_limit_v" if key == "alert_limit_h" else "alert_limit_h"
+        v = verify_batch(batch, "joint", **{key: limit, other: None})
+        worst = int(np.argmax(level))
+        beyond = v.diagnostics["beyond_alert_limit"][0]
+        assert np.flatnonzero(beyond).tolist() == [worst], key
+        assert v.status[0] == "degenerate" and v.drone_status[0, worst] == "degenerate"
+        assert (np.delete(v.drone_status[0], worst) == "ok").all()
+        assert np.array_equal(v.positions[0, worst], prior[0, worst])  # its prior, not its estimate
+        assert np.isinf(v.hpl[0, worst]) and np.isinf(v.vpl[0, worst])
+        keep = np.arange(9) != worst
+        assert np.array_equal(v.positions[0, keep], free.positions[0, keep])
+        assert np.array_equal(v.hpl[0, keep], free.hpl[0, keep])
+    high = verify_batch(batch, "joint", alert_limit_h=1e4, alert_limit_v=1e4)
+    assert np.array_equal(high.positions, free.positions) and high.status[0] == "ok"
+
+
+def test_an_alarm_keeps_its_estimates_whatever_its_levels():
+    """An alarm's positions are estimates for diagnosis, its levels computed as for ok:
+    the alert limits withhold nothing there (a limit of 1 m, below every level)."""
+    truth, rep, ranges, _ = noisy_swarm("cube", 9, 0, 1, seed=3)
+    rep = rep.copy()
+    rep[0, 0] += 25.0  # one drone's fix off, with f_max = 0: exclusion exhausted
+    batch = SnapshotBatch(rep, ranges, (1.5, 3.0), 0.1)
+    free = verify_batch(batch, "joint", f_max=0, alert_limit_h=None, alert_limit_v=None)
+    v = verify_batch(batch, "joint", f_max=0, alert_limit_h=1.0, alert_limit_v=1.0)
+    assert free.status[0] == v.status[0] == "alarm"
+    assert not v.diagnostics["beyond_alert_limit"].any()
+    np.testing.assert_array_equal(v.positions, free.positions)
+    np.testing.assert_array_equal(v.hpl, free.hpl)
 
 
 @pytest.mark.parametrize("det", NEW)
@@ -296,7 +363,10 @@ def test_trusted_set_solver_is_efficient_where_it_must_be(det="joint"):
     for n, f in ((7, 3), (9, 4), (13, 3)):
         cfg = build_config("realistic", n=(n,), f=(f,), trials=300)
         d = draw(cfg, np.random.default_rng(n), 300, n, f)
-        v = verify_given(snapshot_batch(cfg, d), ~d.attackers, det)
+        # the estimator's own accuracy: every position it determines counted, none withheld
+        # for a level above the alert limits (at (7, 3) 24 % of the drones would be)
+        off = {"alert_limit_h": None, "alert_limit_v": None}
+        v = verify_given(snapshot_batch(cfg, d), ~d.attackers, det, **off)
         assert (v.faulty == d.attackers).all()
         C = swarm_crb(d.truth, ~d.attackers, ~np.isnan(d.ranges), gnss_covariance(1.5, 3.0), 0.1)
         sq = np.sum((v.positions - d.truth) ** 2, axis=2)

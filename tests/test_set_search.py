@@ -70,7 +70,9 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     cfg = build_config("realistic", n=(7,), f=(1,), trials=10000)
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 1, 3)), 1000, 7, 1)
     batch = snapshot_batch(cfg, d).subset(np.array([972]))
-    before = verify_batch(batch, "joint", set_search=0)
+    # the verdict as found, before the alert limits (which now also withhold the spoofer:
+    # its levels are above them)
+    before = verify_batch(batch, "joint", set_search=0, alert_limit_h=None, alert_limit_v=None)
     assert before.status[0] == "degenerate" and before.faulty[0].sum() == 3
     assert np.linalg.norm(before.positions[0] - d.truth[972], axis=1).max() > 90
     v = verify_batch(batch, "joint", set_search=100)
@@ -82,6 +84,24 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     default = verify_batch(batch, "joint")
     assert default.status[0] == "unidentifiable" and not default.faulty[0].any()
     np.testing.assert_array_equal(default.positions, v.positions)
+    # the drones it leaves unplaced are those the geometry does not fix, not the alert limits'
+    off = verify_batch(batch, "joint", set_search=100, alert_limit_h=None, alert_limit_v=None)
+    assert not v.diagnostics["beyond_alert_limit"].any()
+    np.testing.assert_array_equal(v.positions, off.positions)
+
+
+def test_an_explanation_that_places_a_drone_beyond_the_alert_limits_is_no_rival_for_it():
+    """(7, 3), realistic cube, trial 26: the search's answer is `ok` (errors 2.7-5.2 m, levels
+    within 22 m). Another explanation places drones 4 and 6 only with levels above the alert
+    limits (withheld: nan); that is no rival (it places them, not well enough to use), where a
+    mirror image that fits as well would be. With the nan counted as a rival the verdict was
+    `unidentifiable` (found by a review)."""
+    one = _trial(7, 3, 26)
+    off = verify_batch(one, "joint", alert_limit_h=None, alert_limit_v=None)
+    v = verify_batch(one, "joint")
+    assert off.status[0] == v.status[0] == "ok"
+    np.testing.assert_array_equal(v.positions, off.positions)
+    np.testing.assert_array_equal(v.faulty, off.faulty)
 
 
 def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(alarms):
@@ -139,10 +159,17 @@ def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival()
     cfg = build_config("realistic", n=(7,), f=(3,), trials=2000, geometry="flat")
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 3, 0)), 1000, 7, 3)
     batch = snapshot_batch(cfg, d).subset(np.array([253]))
-    assert verify_batch(batch, "joint", set_search=0).status[0] == "degenerate"
-    v = verify_batch(batch, "joint", set_search=100)
+    off = {"alert_limit_h": None, "alert_limit_v": None}  # the rule, where no limit withholds
+    assert verify_batch(batch, "joint", set_search=0, **off).status[0] == "degenerate"
+    v = verify_batch(batch, "joint", set_search=100, **off)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[253]).any()
+    # with the alert limits the spoofer's explanation is no ok answer (its levels are above
+    # them): the verdict stays degenerate, its flags the attackers, nothing placed wrongly
+    v = verify_batch(batch, "joint", set_search=100)
+    assert v.status[0] == "degenerate" and (v.faulty[0] == d.attackers[253]).all()
+    err = np.linalg.norm(v.positions[0] - d.truth[253], axis=1)
+    assert np.nanmax(err) < 10
 
 
 def test_an_alarm_no_set_explains_takes_the_likeliest_set_that_passes_its_residual_tests():

@@ -15,7 +15,9 @@ flags; every status the same), and once more when that test fell back to the GNS
 where the placement is not fixed (against the file before: 8 `joint` arrays, statuses the same),
 and on 2026-12-04 for `joint`'s set search on by default up to 13 drones (5 `joint` arrays of
 one trial, `line` (9, 4) trial 1: still an `alarm`, with the positions and flags of the
-likeliest set that fails only its separation test)."""
+likeliest set that fails only its separation test), and on 2026-12-05 for the alert limits
+(70 m each way: 43 arrays of `flat` and `line` cells, drones whose levels are above them
+withheld; 3 statuses `ok` -> `degenerate`, no flag or trusted set changed)."""
 
 import sys
 from pathlib import Path

@@ -59,7 +59,7 @@ from swarmraft.cli.tables import (
     "params",
     multiple=True,
     metavar="KEY=VALUE",
-    help="detector parameter, repeatable (e.g. --param tau=0.3).",
+    help="detector parameter, repeatable (e.g. --param tau=0.3; the value is read as JSON, null: none).",
 )
 @click.option(
     "--attack",

@@ -47,7 +47,8 @@ SUMMARY_LEGEND = (
 
 
 UNDETERMINED_LEGEND = (
-    " und: share of the drones left without a position (nan: the geometry does not fix them); "
+    " und: share of the drones left without a position (nan: the geometry does not fix them, or "
+    "their protection level is above the alert limit); "
     "the attacked drones' statistics are over the trials that place them."
 )
 

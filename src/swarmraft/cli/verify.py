@@ -118,6 +118,7 @@ def verify_command(
             fmt(v.vpl[i]),
         )
     console.print(table)
-    console.print("m, local ENU; x, y, z nan: position not determined. HPL, VPL: horizontal and")
-    console.print("vertical protection levels (inf: not protected, the position cannot be checked;")
-    console.print("nan: the detector has no noise model). Statuses: docs/detectors.md.")
+    console.print("m, local ENU; x, y, z nan: position not determined, or withheld (its level above the")
+    console.print("alert limits). HPL, VPL: horizontal and vertical protection levels (inf: not")
+    console.print("protected, the position cannot be checked or is withheld; nan: the detector has no")
+    console.print("noise model). Statuses: docs/detectors.md.")

@@ -23,6 +23,9 @@ turns that set into a verdict a user can rely on, the way GNSS receivers do with
      would leave a drone's position unfixed: its fault could not be detected, so no
      protection level exists. That drone's position becomes its prior if it
      has one, else nan, and its protection levels are inf.
+   - last (`_verdicts`), the alert limits: in a verdict that is not an ``alarm``, a drone
+     whose horizontal or vertical protection level is above ``alert_limit_h`` or
+     ``alert_limit_v`` (aviation's "unavailable") is ``degenerate``, withheld the same way.
    - ``ok`` otherwise. (``unidentifiable`` comes from the detectors themselves.)
 
    Protection levels are ARAIM solution separation (Blanch et al.) on the model linearised at
@@ -100,6 +103,18 @@ class IntegrityParams(NoiseParams):
     )
     max_condition: float = Field(
         1e6, gt=1, description="degenerate above this ratio of a drone's largest to smallest variance"
+    )
+    alert_limit_h: float | None = Field(
+        70.0,
+        gt=0,
+        description="horizontal alert limit (m): a drone whose horizontal protection level is above it is "
+        "degenerate, its position withheld (its prior, else nan); 70 m each way keeps the 3-D level within "
+        "99 m, so a usable position 100 m off is beyond a level (misleading information); None: no limit",
+    )
+    alert_limit_v: float | None = Field(
+        70.0,
+        gt=0,
+        description="vertical alert limit (m), as alert_limit_h for the vertical protection level",
     )
     better_fit_margin: float | None = Field(
         None,
@@ -384,6 +399,18 @@ class Assessment:
     gnss_q: np.ndarray  # (T, n) each trusted drone's whitened GNSS residual^2 (0 if untrusted)
 
 
+def beyond_alert_limit(hpl: np.ndarray, vpl: np.ndarray, p: IntegrityParams) -> np.ndarray:
+    """Drones whose horizontal or vertical protection level is above its alert limit (finite
+    levels only: an infinite one already marks a drone that is not protected at all)."""
+    out = np.zeros(hpl.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        if p.alert_limit_h is not None:
+            out |= np.isfinite(hpl) & (hpl > p.alert_limit_h)
+        if p.alert_limit_v is not None:
+            out |= np.isfinite(vpl) & (vpl > p.alert_limit_v)
+    return out
+
+
 def assess(
     est: Estimate,
     reported: np.ndarray,
@@ -577,7 +604,7 @@ def finish(
         trusted[rows] &= common
         est, a = _rejudged(prob, est, a, rows, trusted)
         final = worst_status(a.status, status)
-    return _verdicts(a, trusted, faulty, status, final, diagnostics)
+    return _verdicts(a, trusted, faulty, status, final, diagnostics, prob)
 
 
 def given_set(batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray) -> VerdictBatch:
@@ -590,7 +617,7 @@ def given_set(batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray) -> 
     trusted = np.asarray(trusted, bool).copy()
     _, a = prob.judge(np.arange(trusted.shape[0]), trusted)
     status = np.full(trusted.shape[0], "ok", dtype=object)
-    return _verdicts(a, trusted, ~trusted, status, a.status, None)
+    return _verdicts(a, trusted, ~trusted, status, a.status, None, prob)
 
 
 def _verdicts(
@@ -600,20 +627,42 @@ def _verdicts(
     status: np.ndarray,
     final: np.ndarray,
     diagnostics: dict[str, np.ndarray] | None,
+    prob: _Problem,
 ) -> VerdictBatch:
     """The `VerdictBatch` of an assessment: ``status`` (T,) what the detector decided before
-    it (``alarm`` when exclusion was exhausted), ``final`` the verdict's status."""
+    it (``alarm`` when exclusion was exhausted), ``final`` the verdict's status.
+
+    Then the alert limits, the last word on a verdict that is not an alarm (an alarm's
+    positions are estimates for diagnosis, its levels computed as for ok): a drone whose level
+    is above them is withheld, its position its prior (else nan), its levels inf, its status
+    ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. Only the label:
+    every decision before (repair, rivals, the set search's own judgements) is the same."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
-    diag = {"sigma": a.sigma, "trusted": trusted, "alarm_cause": cause, **(diagnostics or {})}
+    beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & (final != "alarm")[:, None]
+    positions, hpl, vpl = a.positions, a.hpl, a.vpl
+    if beyond.any():
+        fill = np.full(positions.shape, np.nan) if prob.prior is None else prob.prior
+        positions, hpl, vpl = positions.copy(), hpl.copy(), vpl.copy()
+        positions[beyond] = fill[beyond]
+        hpl[beyond] = vpl[beyond] = np.inf
+        drone_status = worst_status(drone_status, np.where(beyond, "degenerate", "ok"))
+        final = worst_status(final, np.where(beyond.any(axis=1), "degenerate", "ok"))
+    diag = {
+        "sigma": a.sigma,
+        "trusted": trusted,
+        "alarm_cause": cause,
+        "beyond_alert_limit": beyond,
+        **(diagnostics or {}),
+    }
     return VerdictBatch(
-        positions=a.positions,
+        positions=positions,
         faulty=faulty,
         status=final.astype(str),
         diagnostics=diag,
         drone_status=drone_status.astype(str),
-        hpl=a.hpl,
-        vpl=a.vpl,
+        hpl=hpl,
+        vpl=vpl,
     )
 
 

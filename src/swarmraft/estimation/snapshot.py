@@ -16,7 +16,8 @@ import numpy as np
 #                  position it returns
 #   alarm          the data are inconsistent and exclusion is exhausted: do not use
 #   unidentifiable two or more trusted sets explain the data equally well
-#   degenerate     the geometry does not fix some position (that drone: prior or nan)
+#   degenerate     the geometry does not fix some position, or its protection level is above
+#                  the alert limits (that drone: prior or nan)
 STATUSES = ("ok", "alarm", "unidentifiable", "degenerate")
 SOURCES = ("gnss", "ins", "none")
 
@@ -151,10 +152,11 @@ class Snapshot:
 class Verdict:
     """The leader's decision for one snapshot.
 
-    positions: (n, 3) verified positions (nan, or the prior, where not determined);
-    faulty: (n,) flags; status: one of `STATUSES`; drone_status: (n,) the status per drone
-    (``degenerate`` for a drone whose position is not determined, else the verdict's);
-    hpl, vpl: (n,) horizontal and vertical protection levels, m (inf where not determined,
+    positions: (n, 3) verified positions (nan, or the prior, where not determined or withheld
+    for a level above the alert limits); faulty: (n,) flags; status: one of `STATUSES`;
+    drone_status: (n,) the status per drone (``degenerate`` for a drone whose position is not
+    determined or withheld, else the verdict's);
+    hpl, vpl: (n,) horizontal and vertical protection levels, m (inf where not determined or withheld,
     nan for a detector without a noise model); diagnostics: per-drone arrays (votes, anchors
     used, ...).
     """

@@ -159,17 +159,15 @@ def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival()
     cfg = build_config("realistic", n=(7,), f=(3,), trials=2000, geometry="flat")
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 3, 0)), 1000, 7, 3)
     batch = snapshot_batch(cfg, d).subset(np.array([253]))
-    off = {"alert_limit_h": None, "alert_limit_v": None}  # the rule, where no limit withholds
-    assert verify_batch(batch, "joint", set_search=0, **off).status[0] == "degenerate"
-    v = verify_batch(batch, "joint", set_search=100, **off)
+    assert verify_batch(batch, "joint", set_search=0).status[0] == "degenerate"
+    v = verify_batch(batch, "joint", set_search=100)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[253]).any()
-    # with the alert limits the spoofer's explanation is no ok answer (its levels are above
-    # them): the verdict stays degenerate, its flags the attackers, nothing placed wrongly
-    v = verify_batch(batch, "joint", set_search=100)
-    assert v.status[0] == "degenerate" and (v.faulty[0] == d.attackers[253]).all()
-    err = np.linalg.norm(v.positions[0] - d.truth[253], axis=1)
-    assert np.nanmax(err) < 10
+    # the search decides on the statuses without the alert limits (the spoofer's explanation
+    # has levels above them, a label that does not change what the data explain): the same
+    off = verify_batch(batch, "joint", set_search=100, alert_limit_h=None, alert_limit_v=None)
+    np.testing.assert_array_equal(v.faulty, off.faulty)
+    np.testing.assert_array_equal(v.status, off.status)
 
 
 def test_an_alarm_no_set_explains_takes_the_likeliest_set_that_passes_its_residual_tests():

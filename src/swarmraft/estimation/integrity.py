@@ -636,10 +636,12 @@ def _verdicts(
     positions are estimates for diagnosis, its levels computed as for ok): a drone whose level
     is above them is withheld, its position its prior (else nan), its levels inf, its status
     ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. Only the label:
-    every decision before (repair, rivals, the set search's own judgements) is the same."""
+    every decision (repair, rivals, the set search, which reads
+    ``diagnostics["status_without_limits"]``) is the same with or without the limits."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
     beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & (final != "alarm")[:, None]
+    unlimited = final.astype(str)
     positions, hpl, vpl = a.positions, a.hpl, a.vpl
     if beyond.any():
         fill = np.full(positions.shape, np.nan) if prob.prior is None else prob.prior
@@ -653,6 +655,7 @@ def _verdicts(
         "trusted": trusted,
         "alarm_cause": cause,
         "beyond_alert_limit": beyond,
+        "status_without_limits": unlimited,
         **(diagnostics or {}),
     }
     return VerdictBatch(

@@ -89,27 +89,35 @@ def search_sets(
     ``cap`` sets at most per trial (0: no search); ``budget``: sets estimated at most per
     verdict (None: no limit), a verdict whose search would need more stands as it is."""
     accused = v.faulty.sum(axis=1)
-    rows = np.flatnonzero((v.status == "alarm") | ((v.status == "degenerate") & (accused > 0)))
+    status = decided(v)
+    rows = np.flatnonzero((status == "alarm") | ((status == "degenerate") & (accused > 0)))
     n = v.faulty.shape[1]
     if not rows.size or sum(math.comb(n, k) for k in range(f_max + 1)) > cap:
         return v
     sets = _every_set(n, f_max)
     for t in rows:
         # a degenerate verdict is replaced only by an answer leaving out fewer drones
-        below = None if v.status[t] == "alarm" else int(accused[t])
+        below = None if status[t] == "alarm" else int(accused[t])
         found = _search(batch, p, noise, t, sets, below, budget)
         if found is None:
             continue
         w, k, explained = found
-        if v.status[t] == "alarm":
+        answer = decided(w)[0]
+        if status[t] == "alarm":
             # an explanation where it is better; else the likeliest set that passes its
             # residual tests (an alarm still, its positions those of that set)
-            better = not explained or status_rank(w.status)[0] < status_rank(v.status[t : t + 1])[0]
+            better = not explained or status_rank(np.array([answer]))[0] < status_rank(status[t : t + 1])[0]
         else:
-            better = explained and k < accused[t] and w.status[0] in ("ok", "unidentifiable")
+            better = explained and k < accused[t] and answer in ("ok", "unidentifiable")
         if better:
             v = v.with_rows(np.array([t]), w, np.array([0]))
     return v
+
+
+def decided(v: VerdictBatch) -> np.ndarray:
+    """The statuses the search decides on: the verdicts' own without the alert limits (a
+    drone withheld for its level changes the label, not what the data explain)."""
+    return np.asarray(v.diagnostics.get("status_without_limits", v.status)).astype(str)
 
 
 def _search(
@@ -184,7 +192,7 @@ def _search(
     if first.sum() > 1:
         return _unidentifiable(one, p, noise, sets[first]), k, True
     w = finish(one, p, noise, sets[first])
-    if w.status[0] != "ok":
+    if decided(w)[0] != "ok":
         return w, k, True
     for rest in sizes[k + 1 :]:
         if not estimate(rest):

@@ -2,6 +2,8 @@
 slow drag is caught, honest drones are not pulled beyond raw GNSS, INS tracks do not follow
 suspect positions, and a verdict against the previous record and the INS is an alarm."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -104,6 +106,17 @@ def test_an_ins_track_aligns_only_to_a_settled_record_that_trusts_it_while_the_s
     # every drone's innovation 1 m east in both windows: the swarm is being pulled, nobody aligns
     pulled = [_report(i, drift=np.tile([1.0, 0, 0], (2, 1))) for i in range(4)]
     assert not any(realigns(_record([False] * 4, reports=pulled), i, model) for i in range(4))
+
+
+def test_an_ins_track_does_not_align_to_a_position_the_record_does_not_protect():
+    """A drone whose level is inf in the record (its position withheld for a level above the
+    alert limits: the record carries the prior, the previous step's position; or unchecked)
+    is not aligned to: a drone withheld step after step would have its track pinned to a
+    position it has flown away from. A finite level, or none at all (`paper`: nan), aligns."""
+    model = DriftModel(windows=2)
+    calm = [_report(i, drift=np.zeros((2, 3))) for i in range(4)]
+    rec = replace(_record([False] * 4, "degenerate", calm), hpl=np.array([np.inf, 10.0, np.nan, 10.0]))
+    assert [realigns(rec, i, model) for i in range(4)] == [False, True, True, True]
 
 
 def _verdict(suspect, dragged=None) -> DriftVerdict:

@@ -155,15 +155,20 @@ def realigns(
     rec: StepRecord, i: int, model: DriftModel | None, test: Callable[[], DriftVerdict] | None = None
 ) -> bool:
     """Whether drone i aligns its INS track to its position in the committed record ``rec``:
-    only if the record trusts it (not flagged), is settled (not alarm or unidentifiable), its
-    own drag-off test does not find it suspect, and the swarm is not *being pulled*: the
-    mean innovation of the drones the record trusts is not above the suspect level of the
-    drag-off test. Otherwise its track keeps dead reckoning from its last alignment, so a drag
-    that pulls the committed positions does not pull the tracks. A pure function of the
+    only if the record trusts it (not flagged) and protects it (its level not inf), is
+    settled (not alarm or unidentifiable), its own drag-off test does not find it suspect,
+    and the swarm is not *being pulled*: the mean innovation of the drones the record trusts
+    is not above the suspect level of the drag-off test. Otherwise its track keeps dead
+    reckoning from its last alignment, so a drag that pulls the committed positions does not
+    pull the tracks. A pure function of the
     record (its reports carry the test's input): every drone decides the same. ``test``: where
     the caller has it, `realign_test` of this record (the simulator runs it once per record for
     every drone that applies it)."""
     if rec.faulty[i] or not settled(rec) or not np.isfinite(rec.positions[i]).all():
+        return False
+    if rec.hpl is not None and np.isinf(rec.hpl[i]):
+        # not protected: withheld for a level above the alert limits (the position is the
+        # prior, the previous step's) or unchecked; nan (no levels at all, `paper`) aligns
         return False
     if model is None:
         return True

@@ -47,6 +47,28 @@ def test_the_table_names_flagged_drones():
     )
 
 
+def test_drones_withheld_for_their_levels_are_named_with_the_limits():
+    """An alert limit below some levels (10 m horizontal): those drones are withheld (nan,
+    degenerate), the JSON marks them `withheld`, and the table says why, with the limits,
+    so a nan there is not read as a geometry the detector could not solve."""
+    ex = str(EXAMPLES / "snapshot.json")
+    v = verdict([ex, "--param", "alert_limit_h=10"])
+    free = verdict([ex])
+    withheld = [d["drone"] for d in v["drones"] if d["withheld"]]
+    assert withheld == [d["drone"] for d in free["drones"] if d["hpl"] > 10]
+    assert v["status"] == "degenerate" and not any(d["withheld"] for d in free["drones"])
+    out = [d for d in v["drones"] if d["withheld"]]
+    assert all(d["position"] == [None] * 3 and d["status"] == "degenerate" for d in out)
+    r = CliRunner().invoke(main, ["verify", ex, "--param", "alert_limit_h=10"])
+    assert r.exit_code == 0, r.output
+    text = " ".join(r.output.split())
+    drones = ", ".join(map(str, withheld))
+    limits = "(H 10 m, V 70 m)"
+    assert f"withheld, their protection level above the alert limits {limits}: drones {drones}" in text
+    plain = CliRunner().invoke(main, ["verify", ex])
+    assert "withheld, their" not in plain.output
+
+
 def test_paper_on_a_noisy_snapshot_without_a_threshold_says_its_default_is_for_exact_data():
     """paper's default tau (0.01 m) votes out every honest drone of a snapshot with 1.5/3 m of
     GNSS noise: the command says so, and not once tau is given."""

@@ -56,6 +56,7 @@ def verify_command(
     """
     from swarmraft.estimation import verify
     from swarmraft.estimation.paper import PaperParams
+    from swarmraft.estimation.registry import detector_params
     from swarmraft.experiments.snapshot_file import read_snapshot
 
     snap = read_snapshot(snapshot, gnss_sigma=_pair(gnss_sigma, "--gnss-sigma"), range_sigma=range_sigma)
@@ -78,6 +79,7 @@ def verify_command(
         )
     v = verify(snap, detector, **extra)
     n = len(v.faulty)
+    withheld = np.asarray(v.diagnostics.get("beyond_alert_limit", np.zeros(n, bool)), bool)
     if as_json:
 
         def num(x: float) -> float | None:
@@ -94,6 +96,7 @@ def verify_command(
                     "position": [num(c) for c in v.positions[i]],
                     "hpl": num(v.hpl[i]),
                     "vpl": num(v.vpl[i]),
+                    "withheld": bool(withheld[i]),
                 }
                 for i in range(n)
             ],
@@ -118,6 +121,14 @@ def verify_command(
             fmt(v.vpl[i]),
         )
     console.print(table)
+    if withheld.any():
+        p = detector_params(detector, **extra)
+        limits = ", ".join(
+            f"{axis} {'none' if lim is None else f'{lim:g} m'}"
+            for axis, lim in (("H", p.alert_limit_h), ("V", p.alert_limit_v))
+        )
+        drones = ", ".join(str(i) for i in np.flatnonzero(withheld))
+        console.print(f"withheld, their protection level above the alert limits ({limits}): drones {drones}")
     console.print("m, local ENU; x, y, z nan: position not determined, or withheld (its level above the")
     console.print("alert limits). HPL, VPL: horizontal and vertical protection levels (inf: not")
     console.print("protected, the position cannot be checked or is withheld; nan: the detector has no")

@@ -408,3 +408,22 @@ def test_scaling_with_several_f_per_n_draws_each_fs_interval_beside_the_others(d
     seg = bars["verified, f = 4"].lines[2][0].get_segments()[0]  # the first point's bar
     assert np.allclose([seg[0][1], seg[1][1]], [2.9 - 1.96 * 0.4, 2.9 + 1.96 * 0.4])
     assert ax.get_legend().get_bbox_to_anchor().x0 >= ax.get_window_extent().x1 - 1  # beside the axes
+
+
+def test_the_stanford_diagram_marks_the_alert_limit_and_the_axis_reaches_it():
+    """With an alert limit (70 m) the panel draws it (dashed, the region beyond shaded:
+    unavailable) and its axis reaches it even when every level is far below; without one,
+    nothing is drawn there."""
+    import matplotlib.pyplot as plt
+
+    from swarmraft.viz.integrity import _panel
+
+    err, pl = np.array([0.05, 0.1, 0.2]), np.array([0.5, 0.8, 1.2])
+    fig, (a, b) = plt.subplots(1, 2)
+    _panel(a, err, pl, "horizontal", 70.0)
+    _panel(b, err, pl, "horizontal", None)
+    vertical = [ln for ln in a.get_lines() if np.allclose(ln.get_xdata(), 70.0)]
+    assert len(vertical) == 1 and a.get_xlim()[1] >= 70.0
+    assert any("alert limit 70 m" in t.get_text() for t in a.texts)
+    assert not any("alert limit" in t.get_text() for t in b.texts) and b.get_xlim()[1] < 70.0
+    plt.close(fig)

@@ -283,6 +283,7 @@ def draw_animation(results: Path, out: Path | None, fps: float, every: int | Non
 
 def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = "projections") -> list[Path]:
     from swarmraft import viz
+    from swarmraft.estimation.registry import detector_params
     from swarmraft.experiments import SweepConfig
     from swarmraft.experiments.cases import recovery_cases
     from swarmraft.experiments.sweep import load_results
@@ -304,7 +305,9 @@ def draw_figures(kind: str, results: Path, out: Path | None = None, view: str = 
         elif k == "integrity":
             cellset = ", ".join(f"({a}, {b})" for a, b in zip(cells["n"], cells["f"], strict=True))
             title = f"{cells['preset'][0]}, {cells['detector'][0]}, (n, f) = {cellset}"
-            paths.append(viz.stanford(trials, target, title))
+            p = detector_params(config.detector, **config.detector_params)
+            limits = (getattr(p, "alert_limit_h", None), getattr(p, "alert_limit_v", None))
+            paths.append(viz.stanford(trials, target, title, limits))
         else:
             title = f"{labels}, seed {config.seed}"
             paths.append(viz.recovery(recovery_cases(config), target, view, title))

@@ -222,27 +222,34 @@ def test_the_demo_skips_no_step_without_a_cause(demo):
     assert "0 unexplained" in " ".join(out.split())
 
 
-def test_mission_json_is_the_summary_and_nothing_else(tmp_path):
+def mission_of(tmp_path, scenario: str, *args: str):  # noqa: ANN201 (click's Result)
+    """`swarmraft mission` on the scenario file text ``scenario`` (written to tmp_path), its
+    output in tmp_path/o; it must succeed."""
     f = tmp_path / "s.toml"
-    f.write_text(
+    f.write_text(scenario)
+    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o"), *args])
+    assert res.exit_code == 0, res.output
+    return res
+
+
+def test_mission_json_is_the_summary_and_nothing_else(tmp_path):
+    res = mission_of(
+        tmp_path,
         'name = "tiny"\ndrones = 5\nduration_s = 2\nseed = 2\n'
-        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 1\n'
+        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 1\n',
+        "--json",
     )
-    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o"), "--json"])
-    assert res.exit_code == 0, res.stderr
     printed = json.loads(res.stdout)
     assert printed == json.loads((tmp_path / "o" / "summary.json").read_text())
     assert "wrote" in res.stderr and "wrote" not in res.stdout
 
 
 def test_the_printed_summary_warns_of_a_spoofed_majority(tmp_path):
-    f = tmp_path / "s.toml"
-    f.write_text(
+    res = mission_of(
+        tmp_path,
         'name = "majority"\ndrones = 5\nduration_s = 2\nseed = 3\n'
-        '[[spoof]]\nkind = "area"\ndrones = [2, 3, 4]\nstart_s = 1\nmagnitude = 40\n'
+        '[[spoof]]\nkind = "area"\ndrones = [2, 3, 4]\nstart_s = 1\nmagnitude = 40\n',
     )
-    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o")])
-    assert res.exit_code == 0, res.output
     assert "warning: up to 3 of 5 drones spoofed at once" in " ".join(res.stdout.split())
 
 

@@ -6,13 +6,12 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from swarmraft.cli import main
 from swarmraft.experiments.mission import error_series, summarize, write_results
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.scenario import Scenario
 from swarmraft.viz.report import mission_checks
+from test_mission_summary import mission_of
 
 
 @pytest.fixture(scope="module")
@@ -55,13 +54,11 @@ def test_a_summary_that_cannot_be_written_leaves_the_folder_as_it_was(spoofed, t
 
 
 def test_a_mission_that_commits_nothing_claims_nothing(tmp_path):
-    f = tmp_path / "lost.toml"
-    f.write_text(
+    res = mission_of(
+        tmp_path,
         'name = "lost"\ndrones = 5\nduration_s = 2\n[network]\nloss = 1.0\n'
-        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 0.5\n'
+        '[[spoof]]\nkind = "jump"\ndrones = [2]\nstart_s = 0.5\n',
     )
-    res = CliRunner().invoke(main, ["mission", "--scenario", str(f), "--out", str(tmp_path / "o")])
-    assert res.exit_code == 0, res.output
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["committed_steps"] == 0
     assert s["honest_false_positive_rate"] is None  # no honest drone was judged

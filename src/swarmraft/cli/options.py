@@ -145,10 +145,16 @@ def name_list(text: str, name: str, known: list[str], noun: str) -> list[str]:
     for v in names:
         if v not in known:
             raise click.BadParameter(f"unknown {noun} {v!r}; known: {', '.join(known)}", param_hint=name)
-    if twice := sorted({v for v in names if names.count(v) > 1}):
+    if twice := repeated(names):
         # the same trials run and tabled twice
         raise click.BadParameter(f"{', '.join(twice)} given more than once", param_hint=name)
     return names
+
+
+def repeated(values: list) -> list:
+    """The values given more than once in ``values``, sorted (an option's list that names one
+    thing twice runs and tables it twice)."""
+    return sorted({v for v in values if values.count(v) > 1})
 
 
 def key_values(items: tuple[str, ...]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from swarmraft.cli.options import (
     OutFolder,
     key_values,
     name_list,
+    repeated,
     swarm_sizes,
     sweep_config,
     typed,
@@ -600,7 +601,7 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
         raise click.BadParameter(
             f"offsets are distances, finite and >= 0 m: got {offsets!r}", param_hint="--offsets"
         )
-    if twice := sorted({v for v in offs if offs.count(v) > 1}):
+    if twice := repeated(offs):
         raise click.BadParameter(f"{', '.join(f'{v:g}' for v in twice)} m twice", param_hint="--offsets")
     from swarmraft.experiments.results_folder import require_own
 

@@ -53,12 +53,18 @@ UNDETERMINED_LEGEND = (
 )
 
 
+def _undetermined(rows: Mapping[str, np.ndarray]) -> tuple[np.ndarray, bool]:
+    """The rows' shares of undetermined drones, and whether the column is shown (some row has
+    any): a sweep's table and a comparison's show it alike."""
+    und = np.asarray(rows.get("undetermined_rate", np.zeros(len(rows["n"]))), float)
+    return und, bool((und > 0).any())
+
+
 def summary_table(cells: Mapping[str, np.ndarray], title: str) -> tuple[Table, str]:
     """A sweep's cells: the paper's metric for the attacked drones, and the rates; with a
     column of undetermined drones where any cell has them (its statistics leave them out)."""
     t = _table(title)
-    und = np.asarray(cells.get("undetermined_rate", np.zeros(len(cells["n"]))), float)
-    shown = bool((und > 0).any())
+    und, shown = _undetermined(cells)
     for col in ("n", "f", "trials", "base", "mean", "sem", "med", "p99", ">1m", "hon", "det", "FP"):
         t.add_column(col, justify="right", no_wrap=True)
     if shown:
@@ -98,8 +104,7 @@ def compare_table(table: Mapping[str, np.ndarray], title: str) -> tuple[Table, s
     t = _table(title)
     _names(t, "attack", table["attack"])
     _names(t, "detector", table["detector"])
-    und = np.asarray(table.get("undetermined_rate", np.zeros(len(table["n"]))), float)
-    shown = bool((und > 0).any())
+    und, shown = _undetermined(table)
     for col in (
         "n",
         "f",

@@ -160,10 +160,9 @@ def realigns(
     and the swarm is not *being pulled*: the mean innovation of the drones the record trusts
     is not above the suspect level of the drag-off test. Otherwise its track keeps dead
     reckoning from its last alignment, so a drag that pulls the committed positions does not
-    pull the tracks. A pure function of the
-    record (its reports carry the test's input): every drone decides the same. ``test``: where
-    the caller has it, `realign_test` of this record (the simulator runs it once per record for
-    every drone that applies it)."""
+    pull the tracks. A pure function of the record (its reports carry the test's input):
+    every drone decides the same. ``test``: where the caller has it, `realign_test` of this
+    record (the simulator runs it once per record for every drone that applies it)."""
     if rec.faulty[i] or not settled(rec) or not np.isfinite(rec.positions[i]).all():
         return False
     if rec.hpl is not None and np.isinf(rec.hpl[i]):

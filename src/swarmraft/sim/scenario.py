@@ -52,6 +52,11 @@ def _ids(ids: list[int]) -> str:
     return ", ".join(str(i) for i in ids)
 
 
+def _repeated(ids: list[int]) -> list[int]:
+    """The ids that occur more than once in ``ids``, sorted."""
+    return sorted({i for i in ids if ids.count(i) > 1})
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -275,7 +280,7 @@ class Scenario(_Strict):
             bad = [i for i in ids if not 1 <= i <= self.drones]
             if bad:
                 raise ValueError(f"{where}: drone ids must be in 1..{self.drones}, got {bad}")
-            if twice := sorted({i for i in ids if ids.count(i) > 1}):
+            if twice := _repeated(ids):
                 raise ValueError(f"{where}: drone {_ids(twice)} twice")
 
         def timed(start: float, end: float | None, where: str, field: str = "start_s") -> None:
@@ -331,7 +336,7 @@ class Scenario(_Strict):
                 for g in f.groups:
                     check(g, f"fault[{k}].groups")
                 members = [d for g in f.groups for d in g]
-                if twice := sorted({d for d in members if members.count(d) > 1}):
+                if twice := _repeated(members):
                     raise ValueError(
                         f"fault[{k}].groups: drone {_ids(twice)} is in two groups (it would bridge them: "
                         "no partition)"

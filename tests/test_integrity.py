@@ -230,6 +230,32 @@ def test_an_alarm_keeps_its_estimates_whatever_its_levels():
     np.testing.assert_array_equal(v.hpl, free.hpl)
 
 
+def test_an_untrusted_drone_whose_fault_could_not_be_detected_is_withheld():
+    """(9, 4), realistic, trial 15,650 (found at 30,000 trials): `joint` answers
+    `unidentifiable`, trusting only honest drones 4-7, so no fault among them could be
+    detected (every level inf). The untrusted drones are placed by their ranges to those 4
+    alone: spoofed drones 0-3 and honest drone 8 were returned 35-187 m off, each fitting its
+    4 ranges. With the alert limits, an untrusted drone whose level is infinite is beyond
+    them: withheld (nan: no prior), `diagnostics["unverified"]`; the trusted drones keep their
+    estimates (their own reports are in the fit), and no flag changes. Without the limits
+    the estimates are kept, as before."""
+    truth, rep, rng_, _ = _realistic_trials(9, 4, (15650,))
+    batch = SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1)
+    off = verify_batch(batch, "joint", alert_limit_h=None, alert_limit_v=None)
+    v = verify_batch(batch, "joint")
+    trusted = v.diagnostics["trusted"][0]
+    assert v.status[0] == off.status[0] == "unidentifiable" and trusted.sum() == 4
+    np.testing.assert_array_equal(v.faulty, off.faulty)
+    err = np.linalg.norm(off.positions - truth, axis=2)[0]
+    assert (err[~trusted] > 30).all() and np.isinf(off.hpl[0]).all()  # the verdict as it was found
+    assert not off.diagnostics["unverified"].any()
+    assert np.array_equal(v.diagnostics["unverified"][0], ~trusted)
+    assert np.array_equal(v.diagnostics["withheld"][0], ~trusted)
+    assert np.isnan(v.positions[0, ~trusted]).all()
+    np.testing.assert_array_equal(v.positions[0, trusted], off.positions[0, trusted])
+    assert (np.linalg.norm(v.positions[0, trusted] - truth[0, trusted], axis=1) < 10).all()
+
+
 @pytest.mark.parametrize("det", NEW)
 def test_a_rival_with_one_more_drone_out_or_any_drone_swapped_is_found(det):
     """(9, 4), realistic: ok verdicts 25-98 m off (beyond their levels) whose true trusted set

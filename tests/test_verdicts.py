@@ -17,7 +17,9 @@ and on 2026-12-04 for `joint`'s set search on by default up to 13 drones (5 `joi
 one trial, `line` (9, 4) trial 1: still an `alarm`, with the positions and flags of the
 likeliest set that fails only its separation test), and on 2026-12-05 for the alert limits
 (70 m each way: 43 arrays of `flat` and `line` cells, drones whose levels are above them
-withheld; 3 statuses `ok` -> `degenerate`, no flag or trusted set changed)."""
+withheld; 3 statuses `ok` -> `degenerate`, no flag or trusted set changed), and again for the
+untrusted drones whose faults could not be detected, withheld with the limits set (positions of
+5 arrays now nan; no flag, status or level changed)."""
 
 import sys
 from pathlib import Path

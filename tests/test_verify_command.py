@@ -122,3 +122,35 @@ def test_a_bad_gnss_sigma_is_refused_even_where_the_file_gives_its_own(tmp_path,
     assert "gnss_sigma" in json.loads((tmp_path / "s.json").read_text())
     line = fails_cleanly(["verify", "s.json", "--gnss-sigma", "-1,2"], "--gnss-sigma", tmp_path)
     assert "sigmas are finite and >= 0 m" in line
+
+
+def test_untrusted_drones_whose_faults_could_not_be_detected_are_named_as_withheld(tmp_path):
+    """(9, 4), realistic, trial 15,650: `joint` trusts 4 honest drones only; the 5 others are
+    placed by ranges to those 4 alone, 35-187 m off. With the alert limits they are withheld
+    (nan), the JSON marks them, and the table says why; without the limits they are placed."""
+    from test_integrity import _realistic_trials
+
+    _, rep, ranges, _ = _realistic_trials(9, 4, (15650,))
+    rng = np.where(np.isfinite(ranges[0]), ranges[0], np.nan)
+    doc = {
+        "reported": rep[0].tolist(),
+        "ranges": [[None if np.isnan(x) else float(x) for x in row] for row in rng],
+        "gnss_sigma": [1.5, 3.0],
+        "range_sigma": 0.1,
+    }
+    path = tmp_path / "t15650.json"
+    path.write_text(json.dumps(doc))
+    v = verdict([str(path)])
+    assert v["status"] == "unidentifiable"
+    withheld = [d["drone"] for d in v["drones"] if d["withheld"]]
+    assert withheld == [0, 1, 2, 3, 8]
+    assert all(d["position"] == [None] * 3 for d in v["drones"] if d["withheld"])
+    assert all(None not in d["position"] for d in v["drones"] if not d["withheld"])
+    off = verdict([str(path), "--param", "alert_limit_h=null", "--param", "alert_limit_v=null"])
+    assert not any(d["withheld"] for d in off["drones"]) and all(
+        None not in d["position"] for d in off["drones"]
+    )
+    r = CliRunner().invoke(main, ["verify", str(path)])
+    text = " ".join(r.output.split())
+    assert "withheld, untrusted, placed only by drones a fault of which could not be detected" in text
+    assert "drones 0, 1, 2, 3, 8" in text and "their protection level above" not in text

@@ -13,6 +13,10 @@ from rich.table import Table
 from swarmraft.cli.app import console, err_console, main
 from swarmraft.cli.options import key_values
 
+# the drones a verdict withholds under the alert limits: a level above them, and an untrusted
+# drone whose fault could not be detected (its level inf); docs/detectors.md, Alert limits
+_WITHHELD = ("beyond_alert_limit", "unverified")
+
 
 def _pair(text: str | None, option: str) -> tuple[float, float] | None:
     if text is None:
@@ -79,7 +83,8 @@ def verify_command(
         )
     v = verify(snap, detector, **extra)
     n = len(v.faulty)
-    withheld = np.asarray(v.diagnostics.get("beyond_alert_limit", np.zeros(n, bool)), bool)
+    beyond, unverified = (np.asarray(v.diagnostics.get(k, np.zeros(n, bool)), bool) for k in _WITHHELD)
+    withheld = beyond | unverified
     if as_json:
 
         def num(x: float) -> float | None:
@@ -127,9 +132,17 @@ def verify_command(
             f"{axis} {'none' if lim is None else f'{lim:g} m'}"
             for axis, lim in (("H", p.alert_limit_h), ("V", p.alert_limit_v))
         )
-        drones = ", ".join(str(i) for i in np.flatnonzero(withheld))
-        console.print(f"withheld, their protection level above the alert limits ({limits}): drones {drones}")
-    console.print("m, local ENU; x, y, z nan: position not determined, or withheld (its level above the")
-    console.print("alert limits). HPL, VPL: horizontal and vertical protection levels (inf: not")
+        for which, why in (
+            (beyond, "their protection level above the alert limits"),
+            (
+                unverified,
+                "untrusted, placed only by drones a fault of which could not be detected (level inf)",
+            ),
+        ):
+            if which.any():
+                drones = ", ".join(str(i) for i in np.flatnonzero(which))
+                console.print(f"withheld, {why} ({limits}): drones {drones}")
+    console.print("m, local ENU; x, y, z nan: position not determined, or withheld (beyond the alert")
+    console.print("limits). HPL, VPL: horizontal and vertical protection levels (inf: not")
     console.print("protected, the position cannot be checked or is withheld; nan: the detector has no")
     console.print("noise model). Statuses: docs/detectors.md.")

@@ -25,7 +25,9 @@ turns that set into a verdict a user can rely on, the way GNSS receivers do with
      has one, else nan, and its protection levels are inf.
    - last (`_verdicts`), the alert limits: in a verdict that is not an ``alarm``, a drone
      whose horizontal or vertical protection level is above ``alert_limit_h`` or
-     ``alert_limit_v`` (aviation's "unavailable") is ``degenerate``, withheld the same way.
+     ``alert_limit_v`` (aviation's "unavailable") is ``degenerate``, withheld the same way;
+     so is an untrusted drone whose fault could not be detected (placed only by ranges to
+     trusted drones, one of which could be faulty unseen; a trusted one keeps its estimate).
    - ``ok`` otherwise. (``unidentifiable`` comes from the detectors themselves.)
 
    Protection levels are ARAIM solution separation (Blanch et al.) on the model linearised at
@@ -397,6 +399,7 @@ class Assessment:
     sigma: np.ndarray
     alarm_cause: np.ndarray  # (T,) "", "residual test", "separation test" or "not converged"
     gnss_q: np.ndarray  # (T, n) each trusted drone's whitened GNSS residual^2 (0 if untrusted)
+    unverifiable: np.ndarray  # (T, n) placed, but a fault of some trusted drone could not be detected
 
 
 def beyond_alert_limit(hpl: np.ndarray, vpl: np.ndarray, p: IntegrityParams) -> np.ndarray:
@@ -519,7 +522,9 @@ def assess(
     vpl[weak] = np.inf
     status = np.where(alarm, "alarm", np.where(weak.any(axis=1), "degenerate", "ok")).astype(object)
     drone_status = np.where(alarm[:, None], "alarm", np.where(weak, "degenerate", "ok")).astype(object)
-    a = Assessment(status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq)
+    a = Assessment(
+        status, drone_status, hpl, vpl, positions, sigma, cause.astype(str), gq, unverifiable & ~undetermined
+    )
     rows = np.flatnonzero((status == "ok") & unconverged) if not again else np.zeros(0, int)
     if not rows.size:
         return a
@@ -607,17 +612,21 @@ def finish(
     return _verdicts(a, trusted, faulty, status, final, diagnostics, prob)
 
 
-def given_set(batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray) -> VerdictBatch:
+def given_set(
+    batch: SnapshotBatch, p: IntegrityParams, trusted: np.ndarray, keep_unverified: bool = False
+) -> VerdictBatch:
     """The verdicts of a batch whose trusted set (T, n) is given, not detected: the robust
     estimate and the assessment every statistical detector ends with (statuses, protection
     levels, undetermined drones at nan), without the repair and the rival search (the set is
     not in question). With the true honest set, what the estimator achieves when detection is
-    perfect: `swarmraft sweep --known-set`."""
+    perfect: `swarmraft sweep --known-set`. With ``keep_unverified`` an untrusted drone whose
+    fault could not be detected keeps its estimate whatever the alert limits (`_verdicts`):
+    the set search compares what each set places."""
     prob = _Problem.of(batch, NoiseModel.of(batch, p, "known set"), p)
     trusted = np.asarray(trusted, bool).copy()
     _, a = prob.judge(np.arange(trusted.shape[0]), trusted)
     status = np.full(trusted.shape[0], "ok", dtype=object)
-    return _verdicts(a, trusted, ~trusted, status, a.status, None, prob)
+    return _verdicts(a, trusted, ~trusted, status, a.status, None, prob, keep_unverified)
 
 
 def _verdicts(
@@ -628,6 +637,7 @@ def _verdicts(
     final: np.ndarray,
     diagnostics: dict[str, np.ndarray] | None,
     prob: _Problem,
+    keep_unverified: bool = False,
 ) -> VerdictBatch:
     """The `VerdictBatch` of an assessment: ``status`` (T,) what the detector decided before
     it (``alarm`` when exclusion was exhausted), ``final`` the verdict's status.
@@ -635,18 +645,28 @@ def _verdicts(
     Then the alert limits, the last word on a verdict that is not an alarm (an alarm's
     positions are estimates for diagnosis, its levels computed as for ok): a drone whose level
     is above them is withheld, its position its prior (else nan), its levels inf, its status
-    ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. Only the label:
-    every decision (repair, rivals, the set search, which reads
-    ``diagnostics["status_without_limits"]``) is the same with or without the limits."""
+    ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. So is, with
+    either limit set, an untrusted drone whose fault could not be detected (`assess`: its
+    level is infinite, beyond any limit): it is placed only by its ranges to the trusted
+    drones, any of which could be faulty unseen, and so few anchors can fit a second minimum
+    far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A trusted drone in
+    that case keeps its estimate: its own report is in the fit (``keep_unverified``: the
+    untrusted one too). Only the label: every decision (repair, rivals, the set search, which
+    reads ``diagnostics["status_without_limits"]`` and ``["unverified"]``) is the same with
+    or without the limits."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
-    beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & (final != "alarm")[:, None]
+    live = (final != "alarm")[:, None]
+    beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & live
+    limited = prob.p.alert_limit_h is not None or prob.p.alert_limit_v is not None
+    unverified = a.unverifiable & ~trusted & live & (limited and not keep_unverified)
+    withheld = beyond | unverified
     unlimited = final.astype(str)
     positions, hpl, vpl = a.positions, a.hpl, a.vpl
-    if beyond.any():
+    if withheld.any():
         fill = np.full(positions.shape, np.nan) if prob.prior is None else prob.prior
         positions, hpl, vpl = positions.copy(), hpl.copy(), vpl.copy()
-        positions[beyond] = fill[beyond]
+        positions[withheld] = fill[withheld]
         hpl[beyond] = vpl[beyond] = np.inf
         drone_status = worst_status(drone_status, np.where(beyond, "degenerate", "ok"))
         final = worst_status(final, np.where(beyond.any(axis=1), "degenerate", "ok"))
@@ -655,6 +675,8 @@ def _verdicts(
         "trusted": trusted,
         "alarm_cause": cause,
         "beyond_alert_limit": beyond,
+        "unverified": unverified,
+        "withheld": withheld,
         "status_without_limits": unlimited,
         **(diagnostics or {}),
     }

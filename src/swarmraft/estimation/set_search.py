@@ -171,7 +171,7 @@ def _search(
         if budget is not None and spent > budget:
             return False
         if rows.size:
-            g = given_set(batch.subset(np.full(rows.size, t)), p, sets[rows])
+            g = given_set(batch.subset(np.full(rows.size, t)), p, sets[rows], keep_unverified=True)
             explains[rows] = g.status != "alarm"
             positions[rows] = g.positions
             withheld[rows] = g.diagnostics["beyond_alert_limit"]

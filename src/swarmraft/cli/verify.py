@@ -142,7 +142,7 @@ def verify_command(
             if which.any():
                 drones = ", ".join(str(i) for i in np.flatnonzero(which))
                 console.print(f"withheld, {why} ({limits}): drones {drones}")
-    console.print("m, local ENU; x, y, z nan: position not determined, or withheld (beyond the alert")
-    console.print("limits). HPL, VPL: horizontal and vertical protection levels (inf: not")
+    console.print("m, local ENU; x, y, z nan: position not determined, or withheld under the alert")
+    console.print("limits. HPL, VPL: horizontal and vertical protection levels (inf: not")
     console.print("protected, the position cannot be checked or is withheld; nan: the detector has no")
     console.print("noise model). Statuses: docs/detectors.md.")

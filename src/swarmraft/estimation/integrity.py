@@ -111,7 +111,9 @@ class IntegrityParams(NoiseParams):
         gt=0,
         description="horizontal alert limit (m): a drone whose horizontal protection level is above it is "
         "degenerate, its position withheld (its prior, else nan); 70 m each way keeps the 3-D level within "
-        "99 m, so a usable position 100 m off is beyond a level (misleading information); None: no limit",
+        "99 m, so a usable position 100 m off is beyond a level (misleading information); with either "
+        "limit set, an untrusted drone whose fault could not be detected (level inf) is withheld too; "
+        "None: no limit",
     )
     alert_limit_v: float | None = Field(
         70.0,
@@ -652,8 +654,8 @@ def _verdicts(
     far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A trusted drone in
     that case keeps its estimate: its own report is in the fit (``keep_unverified``: the
     untrusted one too). Only the label: every decision (repair, rivals, the set search, which
-    reads ``diagnostics["status_without_limits"]`` and ``["unverified"]``) is the same with
-    or without the limits."""
+    reads ``diagnostics["status_without_limits"]`` and sees every set's placements through
+    `given_set`'s ``keep_unverified``) is the same with or without the limits."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
     live = (final != "alarm")[:, None]

@@ -26,8 +26,9 @@ turns that set into a verdict a user can rely on, the way GNSS receivers do with
    - last (`_verdicts`), the alert limits: in a verdict that is not an ``alarm``, a drone
      whose horizontal or vertical protection level is above ``alert_limit_h`` or
      ``alert_limit_v`` (aviation's "unavailable") is ``degenerate``, withheld the same way;
-     so is an untrusted drone whose fault could not be detected (placed only by ranges to
-     trusted drones, one of which could be faulty unseen; a trusted one keeps its estimate).
+     so is an untrusted drone without a prior whose fault could not be detected (placed only
+     by ranges to trusted drones, one of which could be faulty unseen; a trusted one, or one
+     with a prior, keeps its estimate).
    - ``ok`` otherwise. (``unidentifiable`` comes from the detectors themselves.)
 
    Protection levels are ARAIM solution separation (Blanch et al.) on the model linearised at
@@ -545,6 +546,7 @@ def finish(
     status: np.ndarray | None = None,
     faulty: np.ndarray | None = None,
     diagnostics: dict[str, np.ndarray] | None = None,
+    keep_unverified: bool = False,
 ) -> VerdictBatch:
     """The verdict of a decided trusted set (T, n): robust estimate, statuses and protection
     levels; ``status`` (T,) carries what the detector already knows (``unidentifiable``),
@@ -611,7 +613,7 @@ def finish(
         trusted[rows] &= common
         est, a = _rejudged(prob, est, a, rows, trusted)
         final = worst_status(a.status, status)
-    return _verdicts(a, trusted, faulty, status, final, diagnostics, prob)
+    return _verdicts(a, trusted, faulty, status, final, diagnostics, prob, keep_unverified)
 
 
 def given_set(
@@ -648,20 +650,26 @@ def _verdicts(
     positions are estimates for diagnosis, its levels computed as for ok): a drone whose level
     is above them is withheld, its position its prior (else nan), its levels inf, its status
     ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. So is, with
-    either limit set, an untrusted drone whose fault could not be detected (`assess`: its
-    level is infinite, beyond any limit): it is placed only by its ranges to the trusted
-    drones, any of which could be faulty unseen, and so few anchors can fit a second minimum
-    far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A trusted drone in
-    that case keeps its estimate: its own report is in the fit (``keep_unverified``: the
-    untrusted one too). Only the label: every decision (repair, rivals, the set search, which
-    reads ``diagnostics["status_without_limits"]`` and sees every set's placements through
+    either limit set, an untrusted drone without a prior whose fault could not be detected
+    (`assess`: its level is infinite, beyond any limit): it is placed only by its ranges to
+    the trusted drones, any of which could be faulty unseen, and so few anchors can fit a
+    second minimum far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A
+    drone with a prior keeps its estimate: the prior (the previous record's position) ties it
+    to where the drone was, resolving the mirror of 3 anchors, and withheld it would become
+    that prior, carried on unchanged while the drone moves. A trusted drone keeps its
+    estimate: its own report is in the fit (``keep_unverified``: the untrusted one too).
+    Only the label: every decision (repair, rivals, the set search, which reads
+    ``diagnostics["status_without_limits"]`` and sees every set's placements through
     `given_set`'s ``keep_unverified``) is the same with or without the limits."""
     drone_status = worst_status(a.drone_status, status[:, None])
     cause = np.where(status == "alarm", "exclusion exhausted", a.alarm_cause)
     live = (final != "alarm")[:, None]
     beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & live
     limited = prob.p.alert_limit_h is not None or prob.p.alert_limit_v is not None
-    unverified = a.unverifiable & ~trusted & live & (limited and not keep_unverified)
+    has_prior = np.zeros(trusted.shape, dtype=bool)
+    if prob.prior is not None and prob.prior_sigma:
+        has_prior = np.isfinite(prob.prior).all(axis=-1)
+    unverified = a.unverifiable & ~trusted & ~has_prior & live & (limited and not keep_unverified)
     withheld = beyond | unverified
     unlimited = final.astype(str)
     positions, hpl, vpl = a.positions, a.hpl, a.vpl

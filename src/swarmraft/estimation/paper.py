@@ -142,7 +142,17 @@ def paper_detector(batch: SnapshotBatch, p: PaperParams) -> VerdictBatch:
     if p.recovery == "joint":
         q = IntegrityParams()
         noise = NoiseModel.of(batch, q, "paper")
-        return finish(batch, q, noise, ~flagged0, diagnostics={"votes": votes, "flagged_by_vote": flagged0})
+        # the paper's recovery made exact: a flagged drone placed by anchors whose faults could
+        # not be detected keeps its estimate (degenerate, levels inf), as Algorithm 1 keeps its
+        # multilateration; the statistical detectors withhold it (`integrity._verdicts`)
+        return finish(
+            batch,
+            q,
+            noise,
+            ~flagged0,
+            diagnostics={"votes": votes, "flagged_by_vote": flagged0},
+            keep_unverified=True,
+        )
     dists = anchor_distances(ranges)
     measured = ~np.isnan(dists) & ~np.eye(n, dtype=bool)
 

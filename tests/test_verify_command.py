@@ -63,10 +63,10 @@ def test_drones_withheld_for_their_levels_are_named_with_the_limits():
     assert r.exit_code == 0, r.output
     text = " ".join(r.output.split())
     drones = ", ".join(map(str, withheld))
-    limits = "(H 10 m, V 70 m)"
-    assert f"withheld, their protection level above the alert limits {limits}: drones {drones}" in text
+    assert "withheld under the alert limits (H 10 m, V 70 m):" in text
+    assert f"drones {drones}: protection level above the limits" in text
     plain = CliRunner().invoke(main, ["verify", ex])
-    assert "withheld, their" not in plain.output
+    assert "withheld" not in plain.output.split("m, local ENU")[0]
 
 
 def test_paper_on_a_noisy_snapshot_without_a_threshold_says_its_default_is_for_exact_data():
@@ -152,5 +152,6 @@ def test_untrusted_drones_whose_faults_could_not_be_detected_are_named_as_withhe
     )
     r = CliRunner().invoke(main, ["verify", str(path)])
     text = " ".join(r.output.split())
-    assert "withheld, untrusted, placed only by drones a fault of which could not be detected" in text
-    assert "drones 0, 1, 2, 3, 8" in text and "their protection level above" not in text
+    assert "withheld under the alert limits (H 70 m, V 70 m):" in text
+    assert "drones 0, 1, 2, 3, 8: untrusted, their anchors' faults undetectable (level inf)" in text
+    assert "protection level above the limits" not in text

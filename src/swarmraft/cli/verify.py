@@ -132,16 +132,14 @@ def verify_command(
             f"{axis} {'none' if lim is None else f'{lim:g} m'}"
             for axis, lim in (("H", p.alert_limit_h), ("V", p.alert_limit_v))
         )
+        console.print(f"withheld under the alert limits ({limits}):")
         for which, why in (
-            (beyond, "their protection level above the alert limits"),
-            (
-                unverified,
-                "untrusted, placed only by drones a fault of which could not be detected (level inf)",
-            ),
+            (beyond, "protection level above the limits"),
+            (unverified, "untrusted, their anchors' faults undetectable (level inf)"),
         ):
             if which.any():
                 drones = ", ".join(str(i) for i in np.flatnonzero(which))
-                console.print(f"withheld, {why} ({limits}): drones {drones}")
+                console.print(f"  drones {drones}: {why}")
     console.print("m, local ENU; x, y, z nan: position not determined, or withheld under the alert")
     console.print("limits. HPL, VPL: horizontal and vertical protection levels (inf: not")
     console.print("protected, the position cannot be checked or is withheld; nan: the detector has no")

@@ -254,6 +254,22 @@ def test_an_untrusted_drone_whose_fault_could_not_be_detected_is_withheld():
     assert np.isnan(v.positions[0, ~trusted]).all()
     np.testing.assert_array_equal(v.positions[0, trusted], off.positions[0, trusted])
     assert (np.linalg.norm(v.positions[0, trusted] - truth[0, trusted], axis=1) < 10).all()
+    for key in ("hpl", "vpl", "drone_status", "status"):
+        np.testing.assert_array_equal(getattr(v, key), getattr(off, key))
+
+
+def test_an_untrusted_unverified_drone_with_a_prior_keeps_its_estimate_one_without_is_nan():
+    """Trial 15,650 again, with a prior 5 m off every drone. Used as information (with
+    prior_sigma), it ties the untrusted drones to where they were: they keep their estimates.
+    Given without prior_sigma it is not information: they are withheld, and withheld means
+    nan, never the prior (a withheld drone given its prior would carry it on unchanged)."""
+    truth, rep, rng_, _ = _realistic_trials(9, 4, (15650,))
+    prior = truth - 5.0
+    used = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1, prior=prior, prior_sigma=3.0), "joint")
+    bare = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1, prior=prior), "joint")
+    out = ~bare.diagnostics["trusted"][0]
+    assert not used.diagnostics["unverified"].any() and np.isfinite(used.positions).all()
+    assert bare.diagnostics["unverified"][0][out].all() and np.isnan(bare.positions[0, out]).all()
 
 
 @pytest.mark.parametrize("det", NEW)

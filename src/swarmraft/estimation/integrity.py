@@ -651,7 +651,8 @@ def _verdicts(
     is above them is withheld, its position its prior (else nan), its levels inf, its status
     ``degenerate``, and an ``ok`` verdict with such a drone is ``degenerate``. So is, with
     either limit set, an untrusted drone without a prior whose fault could not be detected
-    (`assess`: its level is infinite, beyond any limit): it is placed only by its ranges to
+    (`assess`: its level is infinite, beyond any limit), its position nan (a prior given
+    without ``prior_sigma`` is not used, and not given either): it is placed only by its ranges to
     the trusted drones, any of which could be faulty unseen, and so few anchors can fit a
     second minimum far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A
     drone with a prior keeps its estimate: the prior (the previous record's position) ties it
@@ -676,7 +677,8 @@ def _verdicts(
     if withheld.any():
         fill = np.full(positions.shape, np.nan) if prob.prior is None else prob.prior
         positions, hpl, vpl = positions.copy(), hpl.copy(), vpl.copy()
-        positions[withheld] = fill[withheld]
+        positions[beyond] = fill[beyond]
+        positions[unverified] = np.nan  # no prior used (else it would not be withheld): never the prior
         hpl[beyond] = vpl[beyond] = np.inf
         drone_status = worst_status(drone_status, np.where(beyond, "degenerate", "ok"))
         final = worst_status(final, np.where(beyond.any(axis=1), "degenerate", "ok"))

@@ -13,10 +13,6 @@ from rich.table import Table
 from swarmraft.cli.app import console, err_console, main
 from swarmraft.cli.options import key_values
 
-# the drones a verdict withholds under the alert limits: a level above them, and an untrusted
-# drone whose fault could not be detected (its level inf); docs/detectors.md, Alert limits
-_WITHHELD = ("beyond_alert_limit", "unverified")
-
 
 def _pair(text: str | None, option: str) -> tuple[float, float] | None:
     if text is None:
@@ -83,8 +79,12 @@ def verify_command(
         )
     v = verify(snap, detector, **extra)
     n = len(v.faulty)
-    beyond, unverified = (np.asarray(v.diagnostics.get(k, np.zeros(n, bool)), bool) for k in _WITHHELD)
-    withheld = beyond | unverified
+    # withheld under the alert limits (docs/detectors.md): a level above them, or untrusted
+    # with its anchors' faults undetectable; `paper`'s own verdicts have neither
+    withheld, unverified = (
+        np.asarray(v.diagnostics.get(k, np.zeros(n, bool)), bool) for k in ("withheld", "unverified")
+    )
+    beyond = withheld & ~unverified
     if as_json:
 
         def num(x: float) -> float | None:

@@ -60,7 +60,7 @@ from swarmraft.estimation.joint import (
     weighted_gauss_newton,
 )
 from swarmraft.estimation.mirror import mirror_ambiguous
-from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information
+from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information, prior_held
 from swarmraft.estimation.registrations import Candidates, candidates, distinct_explanations
 from swarmraft.estimation.rivals import Rivals, rival_sets
 from swarmraft.estimation.robust import Estimate, robust_estimate
@@ -258,9 +258,7 @@ def too_few_without_one(
     n = trusted.shape[1]
     anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
     cnt = anchors.sum(axis=2)
-    need = np.full(trusted.shape, 4)
-    if prior is not None and prior_sigma:
-        need = np.where(np.isfinite(prior).all(axis=2) & ~trusted, 3, 4)
+    need = np.where(prior_held(prior, prior_sigma, trusted.shape) & ~trusted, 3, 4)
     return np.where(trusted, cnt < 4, (cnt - 1 < need) & (cnt > 0))
 
 
@@ -667,9 +665,7 @@ def _verdicts(
     live = (final != "alarm")[:, None]
     beyond = beyond_alert_limit(a.hpl, a.vpl, prob.p) & live
     limited = prob.p.alert_limit_h is not None or prob.p.alert_limit_v is not None
-    has_prior = np.zeros(trusted.shape, dtype=bool)
-    if prob.prior is not None and prob.prior_sigma:
-        has_prior = np.isfinite(prob.prior).all(axis=-1)
+    has_prior = prior_held(prob.prior, prob.prior_sigma, trusted.shape)
     unverified = a.unverifiable & ~trusted & ~has_prior & live & (limited and not keep_unverified)
     withheld = beyond | unverified
     unlimited = final.astype(str)

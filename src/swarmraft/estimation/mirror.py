@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from swarmraft.estimation.noise import NoiseModel
+from swarmraft.estimation.noise import NoiseModel, prior_held
 from swarmraft.estimation.robust import anchor_planes
 
 
@@ -222,9 +222,7 @@ def mirror_ambiguous(
     T, n, _ = x.shape
     towards = np.ascontiguousarray(np.swapaxes(ranges, 1, 2))  # d_ki: anchor k's measurement of i
     anchors, cnt, mean, vec = anchor_planes(x, ranges, trusted)
-    has_prior = np.zeros((T, n), dtype=bool)
-    if prior is not None and prior_sigma:
-        has_prior = np.isfinite(prior).all(axis=2)
+    has_prior = prior_held(prior, prior_sigma, (T, n))
     pr = np.zeros((T, n, 3)) if prior is None else np.nan_to_num(prior)
     out = np.zeros((T, n), dtype=bool)
     _mirror_kernel(

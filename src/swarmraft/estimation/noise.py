@@ -53,6 +53,14 @@ def _memo(kind: str, gnss_cov: np.ndarray, make) -> np.ndarray:  # noqa: ANN001
     return out
 
 
+def prior_held(prior: np.ndarray | None, prior_sigma: float | None, shape: tuple[int, ...]) -> np.ndarray:
+    """(T, n): the drones whose prior counts as information: a finite prior, and a
+    ``prior_sigma`` to weigh it (a prior without one is not used)."""
+    if prior is None or not prior_sigma:
+        return np.zeros(shape, dtype=bool)
+    return np.isfinite(prior).all(axis=-1)
+
+
 def gnss_information(gnss_cov: np.ndarray) -> np.ndarray:
     """gnss_cov^-1 (3, 3), memoised by the covariance's bytes (a detector has one or two;
     the solvers asked for it a dozen times per leader step). Read only."""

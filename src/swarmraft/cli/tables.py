@@ -48,7 +48,7 @@ SUMMARY_LEGEND = (
 
 UNDETERMINED_LEGEND = (
     " und: share of the drones left without a position (nan: the geometry does not fix them, or "
-    "their protection level is above the alert limit); "
+    "withheld under the alert limits); "
     "the attacked drones' statistics are over the trials that place them."
 )
 

@@ -211,3 +211,42 @@ def test_screen_takes_a_nan_diagonal_and_no_ranges(rng):
     none = np.full((1, 8, 8), np.nan)
     s = screen(none, 0.01)
     assert not s.changed and np.isnan(s.ranges).all()
+
+
+def test_the_quiet_trials_shortcut_gives_the_full_screening(rng):
+    """`screen` leaves the trials its compiled pass calls quiet (`links._quiet`) as they are
+    and screens the others in numpy (`links._screen`): the same answer as screening every
+    trial, field by field, on a batch of clean trials, NLOS links (both ways, one way, and
+    one whose link reads just beyond k sigma in numpy's fit), a link whose two ways disagree
+    though their mean fits, a tamperer, a missing pair and a drone out of range."""
+    from swarmraft.estimation.links import _fit, _long_z, _mds, _quiet, _screen
+
+    truth = uniform_cube(rng, 12, 11)
+    r = true_distances(truth) + 0.01 * rng.standard_normal((12, 11, 11))
+    r[:, np.arange(11), np.arange(11)] = 0.0
+    r[1, 2, 7] += 0.5
+    r[1, 7, 2] += 0.5  # NLOS on a link
+    r[2, 3, 9] += 0.5  # one direction
+    r[3, 4, :] += rng.uniform(3, 9, 11)  # a tamperer
+    r[3, 4, 4] = 0.0
+    r[4, 1, 5] = r[4, 5, 1] = np.nan  # a pair out of range either way
+    r[5, 6, :] = r[5, :, 6] = np.nan  # a drone ranging no one
+    r[7, 2, 7] += 0.04
+    r[7, 7, 2] -= 0.04  # two ways 8 sigma apart, their mean (what the fit reads) right
+    base = np.ones((1, 11, 11)) - np.eye(11)
+    for bias in np.arange(0.02, 0.2, 0.002):  # the smallest bias numpy's fit reads beyond k = 5
+        t6 = r[6:7].copy()
+        t6[0, 0, 8] += bias
+        t6[0, 8, 0] += bias
+        z = _long_z(_fit(_mds(t6, None), t6, base, 0.01), t6, base, 0.01).max()
+        if z > 5.0:
+            break
+    assert z < 5.5
+    r[6] = t6[0]
+    quiet = np.zeros(12, dtype=bool)
+    _quiet(r, 0.01, 5.0, quiet)
+    assert quiet[[0, 8, 9, 10, 11]].all() and not quiet[1:8].any()
+    fast, full = screen(r, 0.01), _screen(r, 0.01, 5.0, 20, 2.0)
+    for name in ("ranges", "dropped", "tampering", "enlarged", "delta"):
+        assert np.array_equal(getattr(fast, name), getattr(full, name), equal_nan=True), name
+    assert fast.dropped[1, 2, 7] and fast.dropped[6].any() and fast.dropped[7, 2, 7] and fast.tampering[3, 4]

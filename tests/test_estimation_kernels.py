@@ -274,3 +274,63 @@ def test_a_start_identical_to_an_earlier_one_is_solved_once_to_the_same_estimate
     assert solved[0] == T * 4
     for field in ("x", "cost", "converged", "ambiguous"):
         np.testing.assert_array_equal(getattr(once, field), getattr(every, field))
+
+
+def placement_reference(x, reported, ranges, faulty, gnss_cov, range_sigma):
+    """`joint_detector`'s re-inclusion statistic as numpy computes it (`gnc._placement_statistic`
+    where the kernel is not sure)."""
+    from swarmraft.estimation.bounds import swarm_crb
+    from swarmraft.estimation.noise import gnss_information
+
+    n = x.shape[1]
+    tr = ~faulty
+    own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+    C = swarm_crb(x, tr, own & tr[:, :, None], gnss_cov, range_sigma)
+    r = reported - x
+    with np.errstate(invalid="ignore"):
+        q = np.einsum("tni,tni->tn", r, np.linalg.solve(gnss_cov + C, r[..., None])[..., 0])
+    return np.where(np.isfinite(q), q, np.einsum("tni,ij,tnj->tn", r, gnss_information(gnss_cov), r))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_placement_kernel_decides_as_numpy(seed: int) -> None:
+    """The compiled re-inclusion statistic (`gnc._placement_q`) is numpy's (to its rounding)
+    wherever it says it is sure; it is not sure of a statistic at the limit itself (there the
+    bits decide), and `_placement_statistic`'s decisions q <= limit are numpy's throughout."""
+    from swarmraft.estimation.gnc import _placement_q, _placement_statistic
+    from swarmraft.estimation.noise import NoiseModel, gnss_information
+
+    cov = np.diag([1.5**2, 1.5**2, 3.0**2])
+    sure_count = 0
+    for b in batches(seed):
+        x, rep, rng_ = b["x"], b["reported"], b["ranges"]
+        faulty = ~b["trusted"]
+        T, n, _ = x.shape
+        ref = placement_reference(x, rep, rng_, faulty, cov, b["range_sigma"])
+        args = (x, rep, rng_, faulty, faulty, gnss_information(cov), cov, 1.0 / b["range_sigma"] ** 2)
+        q, sure = np.zeros((T, n)), np.zeros(T, dtype=bool)
+        _placement_q(*args, 1e300, q, sure)
+        sure_count += sure.sum()
+        for t in np.flatnonzero(sure):
+            np.testing.assert_allclose(q[t][faulty[t]], ref[t][faulty[t]], rtol=1e-6)
+            if not faulty[t].any():
+                continue
+            at = float(ref[t][faulty[t]][0])  # a limit a statistic sits on
+            q2, s2 = np.zeros((1, n)), np.zeros(1, dtype=bool)
+            _placement_q(
+                *(
+                    a[t : t + 1] if isinstance(a, np.ndarray) and a.ndim >= 2 and a.shape[0] == T else a
+                    for a in args
+                ),
+                at,
+                q2,
+                s2,
+            )
+            assert not s2[0]
+        noise = NoiseModel(cov, b["range_sigma"], None)
+        rows = np.flatnonzero(faulty.any(axis=1))
+        for limit in (1.0, 16.27, 100.0):
+            got = _placement_statistic(x, rep, rng_, faulty, faulty, rows, noise, limit)
+            want = ref[rows]
+            np.testing.assert_array_equal((got <= limit) & faulty[rows], (want <= limit) & faulty[rows])
+    assert sure_count > 40  # the kernel decides most trials

@@ -18,11 +18,13 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from swarmraft.estimation.bounds import CHI2_3DOF_999, swarm_crb
+from swarmraft.estimation.bounds import CHI2_3DOF_999, MAX_CONDITION, swarm_crb
 from swarmraft.estimation.clique import CliqueParams, clique_detector
 from swarmraft.estimation.envelope import SPARSE_SHARE
 from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max, status_rank
 from swarmraft.estimation.joint import (
+    _cholesky,
+    _cholesky_solve_columns,
     joint_estimate,
     levenberg_marquardt_kernel,
     residuals,
@@ -36,6 +38,10 @@ from swarmraft.estimation.set_search import search_sets
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
 
 FOLD_ROUNDS = 6  # re-inclusion rounds on a sparse range graph (`joint_detector`)
+#: `_placement_q` up to this many drones (its inverse is dense: beyond, numpy's LAPACK is faster)
+PLACEMENT_KERNEL_N = 32
+#: relative distance from flag_chi2 within which `_placement_q` leaves the decision to numpy
+PLACEMENT_MARGIN = 1e-6
 
 
 def geman_mcclure_weights(r2: np.ndarray, c2: float, mu: float) -> np.ndarray:
@@ -167,6 +173,96 @@ def _gnc_kernel(
                 range_w[t, i, j] = (1.0 * c2r / (r2r[i, j] + 1.0 * c2r)) ** 2 if meas[t, i, j] else 0.0
 
 
+@njit(cache=True)
+def _placement_q(x, reported, ranges, faulty, ask, G, cov, w_r, limit, q, sure):  # pragma: no cover
+    """The re-inclusion statistic of `joint_detector` for the drones ``ask`` (T, n): each one's
+    report minus x whitened by cov + C (C its 3x3 block of the inverse of the information of
+    the trusted drones' GNSS (information G) and of the ranges they measured, weight w_r, at
+    x), in place on q (T, n). ``sure`` (T,): False where numpy must decide instead (`_safe_inv`,
+    with its condition test): the information is not clearly invertible (not positive definite
+    to Cholesky, or its 1-norm condition number not below half of MAX_CONDITION / 3n), or a
+    statistic lies within PLACEMENT_MARGIN (relative; or the condition number times 1e-13, if
+    more) of ``limit``, where the bits of the two computations could decide apart. Otherwise
+    the decision q <= limit is numpy's."""
+    T, n, _ = x.shape
+    N = 3 * n
+    J = np.empty((N, N))
+    P = np.empty((N, N))
+    C = np.empty((3, 3))
+    u = np.empty(3)
+    r = np.empty(3)
+    for t in range(T):
+        sure[t] = False
+        J[:, :] = 0.0
+        for i in range(n):
+            if not faulty[t, i]:
+                for a in range(3):
+                    for b in range(3):
+                        J[3 * i + a, 3 * i + b] += G[a, b]
+        for i in range(n):
+            if faulty[t, i]:
+                continue
+            for j in range(n):
+                if j == i or np.isnan(ranges[t, i, j]):
+                    continue
+                dist = 0.0
+                for a in range(3):
+                    u[a] = x[t, i, a] - x[t, j, a]
+                    dist += u[a] * u[a]
+                dist = np.sqrt(dist)
+                if dist > 0:
+                    for a in range(3):
+                        u[a] /= dist
+                for a in range(3):
+                    for b in range(3):
+                        v = w_r * u[a] * u[b]
+                        J[3 * i + a, 3 * i + b] += v
+                        J[3 * j + a, 3 * j + b] += v
+                        J[3 * i + a, 3 * j + b] -= v
+                        J[3 * j + a, 3 * i + b] -= v
+        norm_j = 0.0
+        for c in range(N):
+            s = 0.0
+            for k in range(N):
+                s += abs(J[k, c])
+            norm_j = max(norm_j, s)
+        if not np.isfinite(norm_j) or _cholesky(J, N) <= 0.0:
+            continue
+        P[:, :] = 0.0
+        for k in range(N):
+            P[k, k] = 1.0
+        _cholesky_solve_columns(J, N, P)
+        norm_p = 0.0
+        for c in range(N):
+            s = 0.0
+            for k in range(N):
+                s += abs(P[k, c])
+            norm_p = max(norm_p, s)
+        cond = norm_j * norm_p
+        if not cond < 0.5 * MAX_CONDITION / N:  # numpy decides the band
+            continue
+        # how far apart the two computations' statistics can be: the margin, or the
+        # inverse's rounding (about the condition number times the machine epsilon)
+        tol = max(PLACEMENT_MARGIN, 1e-13 * cond) * max(1.0, limit)
+        ok = True
+        for i in range(n):
+            if not ask[t, i]:
+                continue
+            for a in range(3):
+                r[a] = reported[t, i, a] - x[t, i, a]
+                for b in range(3):
+                    C[a, b] = cov[a, b] + P[3 * i + a, 3 * i + b]
+            Ci = np.linalg.inv(C)
+            v = 0.0
+            for a in range(3):
+                for b in range(3):
+                    v += r[a] * Ci[a, b] * r[b]
+            q[t, i] = v
+            if not np.isfinite(v) or abs(v - limit) <= tol:
+                ok = False
+        sure[t] = ok
+
+
 class JointParams(IntegrityParams):
     c_gnss: float = Field(4.0, gt=0, description="GNC inlier bound, whitened GNSS residual")
     c_range: float = Field(4.0, gt=0, description="GNC inlier bound, whitened range residual")
@@ -192,6 +288,59 @@ class JointParams(IntegrityParams):
         "(13, 6) on an AMD EPYC); None: no limit (--param search_budget=null; in TOML, which has no "
         "null, a number at least set_search)",
     )
+
+
+def _placement_statistic(
+    x: np.ndarray,
+    reported: np.ndarray,
+    ranges: np.ndarray,
+    faulty: np.ndarray,
+    ask: np.ndarray,
+    rows: np.ndarray,
+    noise: NoiseModel,
+    limit: float,
+) -> np.ndarray:
+    """`joint_detector`'s re-inclusion statistic (len(rows), n) of the trials ``rows``, for
+    the drones ``ask`` (others: any value): each one's report minus x whitened by its GNSS
+    covariance plus the covariance of x (its block of the swarm bound with the ranges that
+    estimate used: not its GNSS, not the ranges the flagged drones measured); the GNSS-only
+    statistic where the others do not fix it (singular information). Compiled
+    (`_placement_q`) where that decides q <= ``limit`` as numpy does, numpy elsewhere."""
+    T, n, _ = x.shape
+    q = np.zeros((rows.size, n))
+    sure = np.zeros(rows.size, dtype=bool)
+    if n <= PLACEMENT_KERNEL_N:
+        _placement_q(
+            np.ascontiguousarray(x[rows]),
+            np.ascontiguousarray(reported[rows]),
+            np.ascontiguousarray(ranges[rows]),
+            np.ascontiguousarray(faulty[rows]),
+            np.ascontiguousarray(ask[rows]),
+            gnss_information(noise.gnss_cov),
+            np.ascontiguousarray(noise.gnss_cov, float),
+            1.0 / noise.range_sigma**2,
+            float(limit),
+            q,
+            sure,
+        )
+    rest = rows[~sure]
+    if rest.size:
+        tr = ~faulty[rest]
+        own = ~np.isnan(ranges[rest]) & ~np.eye(n, dtype=bool)
+        # the placement's covariance: the swarm bound of the data that estimate used (inf in
+        # a trial whose information is singular)
+        C = swarm_crb(x[rest], tr, own & tr[:, :, None], noise.gnss_cov, noise.range_sigma)
+        r = reported[rest] - x[rest]
+        with np.errstate(invalid="ignore"):
+            qr = np.einsum("tni,tni->tn", r, np.linalg.solve(noise.gnss_cov + C, r[..., None])[..., 0])
+        # where the others do not fix every flagged drone (GNC flagged most of the swarm, say)
+        # the placement has no covariance: the GNSS-only test, as before. Keeping those drones
+        # flagged instead turned 50 of (9, 4)'s 10,000 ok verdicts into alarms accusing 3-4
+        # honest drones (false positives 1.2 -> 1.7 %)
+        q[~sure] = np.where(
+            np.isfinite(qr), qr, np.einsum("tni,ij,tnj->tn", r, gnss_information(noise.gnss_cov), r)
+        )
+    return q
 
 
 @register("joint", JointParams, "robust joint estimate (GNC, Geman-McClure) of all positions")
@@ -245,18 +394,7 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         rows = np.flatnonzero((faulty & ~bad_ranges).any(axis=1))
         if not rows.size:
             break
-        tr = ~faulty[rows]
-        # the placement's covariance: the swarm bound of the data that estimate used (inf in a
-        # trial whose information is singular)
-        C = swarm_crb(x[rows], tr, own[rows] & tr[:, :, None], noise.gnss_cov, noise.range_sigma)
-        r = reported[rows] - x[rows]
-        with np.errstate(invalid="ignore"):
-            q = np.einsum("tni,tni->tn", r, np.linalg.solve(noise.gnss_cov + C, r[..., None])[..., 0])
-        # where the others do not fix every flagged drone (GNC flagged most of the swarm, say)
-        # the placement has no covariance: the GNSS-only test, as before. Keeping those drones
-        # flagged instead turned 50 of (9, 4)'s 10,000 ok verdicts into alarms accusing 3-4
-        # honest drones (false positives 1.2 -> 1.7 %)
-        q = np.where(np.isfinite(q), q, np.einsum("tni,ij,tnj->tn", r, gnss_information(noise.gnss_cov), r))
+        q = _placement_statistic(x, reported, ranges, faulty, faulty & ~bad_ranges, rows, noise, p.flag_chi2)
         back = np.zeros_like(faulty)
         back[rows] = faulty[rows] & ~bad_ranges[rows] & (q <= p.flag_chi2)
         if not back.any():

@@ -334,3 +334,46 @@ def test_placement_kernel_decides_as_numpy(seed: int) -> None:
             want = ref[rows]
             np.testing.assert_array_equal((got <= limit) & faulty[rows], (want <= limit) & faulty[rows])
     assert sure_count > 40  # the kernel decides most trials
+
+
+def hypotheses_reference(x, reported, ranges, trusted, keep, G, range_sigma):
+    """`integrity._hypothesis_information` as numpy computed it: J, b and the terms (gnss, u, w)."""
+    T, n, _ = x.shape
+    w_r = 1.0 / range_sigma**2
+    diff = x[:, :, None, :] - x[:, None, :, :]
+    dist = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    u = diff / np.where(dist > 0, dist, 1.0)[..., None]
+    meas = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
+    meas &= keep[:, :, None] & keep[:, None, :]
+    r = np.where(meas, dist - np.nan_to_num(ranges), 0.0)
+    uu = np.einsum("tjk,tjka,tjkb->tjkab", meas * w_r, u, u)  # (T, j, k, 3, 3)
+    idx = np.arange(n)
+    # A_j: block (j, j) GNSS + sum_k w u u^T; blocks (k, k) w u u^T; (j, k), (k, j) -w u u^T.
+    # In J, block (p, q) (p != q) is -uu[p, q] - uu[q, p]; block (p, p) sums over j the
+    # own block (j = p) and uu[j, p] (j != p)
+    J = -(uu + np.swapaxes(uu, 1, 2)).transpose(0, 1, 3, 2, 4)  # (T, p, 3, q, 3)
+    diag = uu.copy()
+    diag[:, idx, idx] = np.where(trusted[..., None, None], G, 0.0) + uu.sum(axis=2)
+    J[:, idx, :, idx, :] = diag.sum(axis=1).transpose(1, 0, 2, 3)  # in order of j
+    b = np.zeros((T, n, n, 3))
+    e = np.where(trusted[..., None], np.einsum("ab,tjb->tja", G, x - reported), 0.0)
+    b[:, idx, idx, :] = e + np.einsum("tjk,tjka->tja", w_r * r, u)
+    b -= np.einsum("tjk,tjka->tjka", w_r * r, u)  # r_jj = 0: the diagonal is untouched
+    return J.reshape(T, 3 * n, 3 * n), b.reshape(T, n, 3 * n), np.where(trusted, 1.0, 0.0), u, meas * w_r
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_hypotheses_kernel_is_the_numpy_expression(seed: int) -> None:
+    from swarmraft.estimation.integrity import _hypothesis_information
+    from swarmraft.estimation.noise import NoiseModel, gnss_information
+
+    cov = np.diag([1.5**2, 1.5**2, 3.0**2])
+    for k, b in enumerate(batches(seed)):
+        T, n, _ = b["x"].shape
+        keep = np.random.default_rng(k).random((T, n)) < 0.9
+        args = (b["x"], b["reported"], b["ranges"], b["trusted"])
+        with np.errstate(over="ignore", invalid="ignore"):
+            want = hypotheses_reference(*args, keep, gnss_information(cov), b["range_sigma"])
+            J, bb, terms = _hypothesis_information(*args, NoiseModel(cov, b["range_sigma"], None), keep)
+        for got, ref in zip((J, bb, terms.gnss, terms.u, terms.w), want, strict=True):
+            same(got, ref)

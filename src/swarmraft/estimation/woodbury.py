@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from swarmraft.estimation.joint import PIVOT_FLOOR, _cholesky, _cholesky_solve_columns
+from swarmraft.estimation.joint import PIVOT_FLOOR, _cholesky, _cholesky_solve_columns, pair_distance
 
 
 @njit(cache=True)
@@ -148,3 +148,84 @@ def without_each(
         dj,
     )
     return Cj, dj.reshape(T, n, n, 3)
+
+
+@njit(cache=True)
+def _finite(d):  # pragma: no cover - compiled
+    """d with an infinite value as +-DBL_MAX, as np.nan_to_num makes it."""
+    if np.isinf(d):
+        big = np.finfo(np.float64).max
+        return big if d > 0 else -big
+    return d
+
+
+@njit(cache=True)
+def hypotheses_kernel(x, reported, ranges, trusted, keep, G, w_r, J, b, gnss, u, w):  # pragma: no cover
+    """`integrity._hypothesis_information` in place on J (T, 3n, 3n), b (T, n, 3n), and the
+    terms gnss (T, n), u (T, j, k, 3), w (T, j, k), in the order of operations of the numpy
+    expressions it replaced (see there: J's diagonal blocks summed over j in order, each
+    hypothesis' own block its GNSS plus its ranges summed over k in order)."""
+    T, n, _ = x.shape
+    uu = np.empty((n, 3, 3))
+    own = np.empty((3, 3))
+    for t in range(T):
+        for j in range(n):
+            gnss[t, j] = 1.0 if trusted[t, j] else 0.0
+            for k in range(n):
+                d = pair_distance(x[t], j, k)
+                s = d if d > 0 else 1.0
+                for a in range(3):
+                    u[t, j, k, a] = (x[t, j, a] - x[t, k, a]) / s
+                m = j != k and not np.isnan(ranges[t, j, k]) and trusted[t, j] and keep[t, j] and keep[t, k]
+                w[t, j, k] = w_r if m else 0.0
+        J[t] = 0.0
+        b[t] = 0.0
+        for j in range(n):
+            # hypothesis j's range terms uu[k] = w u u' (k = j: none) and its own block
+            for k in range(n):
+                for a in range(3):
+                    for c in range(3):
+                        uu[k, a, c] = w[t, j, k] * u[t, j, k, a] * u[t, j, k, c]
+            for a in range(3):
+                for c in range(3):
+                    acc = uu[0, a, c]
+                    for k in range(1, n):
+                        acc += uu[k, a, c]
+                    own[a, c] = (G[a, c] if trusted[t, j] else 0.0) + acc
+            # J: off-diagonal blocks -(uu[p, q] + uu[q, p]) (the (q, p) half added when j = q)
+            for k in range(n):
+                if k == j:
+                    continue
+                for a in range(3):
+                    for c in range(3):
+                        J[t, 3 * j + a, 3 * k + c] -= uu[k, a, c]
+                        J[t, 3 * k + a, 3 * j + c] -= uu[k, a, c]
+            # diagonal blocks: block p sums over j of (own if j = p else uu[p]), j in order
+            for p in range(n):
+                for a in range(3):
+                    for c in range(3):
+                        v = own[a, c] if p == j else uu[p, a, c]
+                        if j == 0:
+                            J[t, 3 * p + a, 3 * p + c] = v
+                        else:
+                            J[t, 3 * p + a, 3 * p + c] += v
+            # b_j: GNSS and range gradients on drone j, minus the range terms on each k
+            for a in range(3):
+                e = 0.0
+                if trusted[t, j]:  # einsum's order: (G_a0 d0 + G_a2 d2) + G_a1 d1
+                    d0 = x[t, j, 0] - reported[t, j, 0]
+                    d1 = x[t, j, 1] - reported[t, j, 1]
+                    d2 = x[t, j, 2] - reported[t, j, 2]
+                    e = (G[a, 0] * d0 + G[a, 2] * d2) + G[a, 1] * d1
+                acc = 0.0
+                for k in range(n):
+                    r = 0.0
+                    if w[t, j, k] > 0:
+                        r = pair_distance(x[t], j, k) - _finite(ranges[t, j, k])
+                    acc += (w_r * r) * u[t, j, k, a]
+                b[t, j, 3 * j + a] = e + acc
+                for k in range(n):
+                    r = 0.0
+                    if w[t, j, k] > 0:
+                        r = pair_distance(x[t], j, k) - _finite(ranges[t, j, k])
+                    b[t, j, 3 * k + a] -= (w_r * r) * u[t, j, k, a]

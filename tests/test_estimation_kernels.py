@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from swarmraft.estimation.gnc import geman_mcclure_weights, gnc_estimate
-from swarmraft.estimation.integrity import _eigenvalues, _unfixed
+from swarmraft.estimation.integrity import _eigenvalues
 from swarmraft.estimation.joint import residuals, weighted_gauss_newton
+from swarmraft.estimation.levels import levels_kernel, unfixed_block
 from swarmraft.estimation.robust import _own_cost, anchor_planes
 from swarmraft.estimation.trust_region import linear_multilateration
 
@@ -150,7 +151,7 @@ def test_gnc_kernel_is_the_numpy_loop() -> None:
 
 
 def unfixed_reference(C, largest0, max_condition):
-    """`integrity.assess`'s test before `_unfixed`: eigenvalues of every block."""
+    """`integrity.assess`'s test before `levels.unfixed_block`: eigenvalues of every block."""
     ev = _eigenvalues(C)
     big0 = np.broadcast_to(largest0, ev.shape[:-1])
     return (ev[..., 2] > max_condition * np.maximum(ev[..., 0], 1e-300)) | (
@@ -181,7 +182,8 @@ def test_unfixed_decides_as_the_eigenvalues_do() -> None:
         l0 = np.exp(rng.uniform(-25, 25, m)) if k % 3 else np.full(m, 1e3)
         mc = float(rng.choice([1e6, 1e3, 10.0, 1e9]))
         with np.errstate(all="ignore"):
-            want, got = unfixed_reference(C, l0, mc), _unfixed(C, l0, mc)
+            want = unfixed_reference(C, l0, mc)
+        got = np.array([unfixed_block(C[i], l0[i], mc) for i in range(m)])
         np.testing.assert_array_equal(want, got)
         total += m
         skipped += int((~want).sum())
@@ -377,3 +379,61 @@ def test_hypotheses_kernel_is_the_numpy_expression(seed: int) -> None:
             J, bb, terms = _hypothesis_information(*args, NoiseModel(cov, b["range_sigma"], None), keep)
         for got, ref in zip((J, bb, terms.gnss, terms.u, terms.w), want, strict=True):
             same(got, ref)
+
+
+def levels_reference(C0, Cj, dj, exact, tr, undetermined, largest0, common, k_fa, k_md, max_condition):
+    """`integrity.assess`'s numpy lines from var0 to the levels (`levels.levels_kernel`)."""
+    var0 = np.diagonal(C0, axis1=-2, axis2=-1) + common
+    sigma = np.sqrt(var0)
+    pl = k_md[:, None, None] * np.sqrt(var0)
+    dj = np.where(np.isfinite(exact), exact, dj)
+    ill = unfixed_reference(Cj, largest0[:, None, :], max_condition)
+    ill = (tr[:, :, None] & ill).any(axis=1)
+    var_j = np.diagonal(Cj, axis1=-2, axis2=-1)
+    var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
+    thr = k_fa[:, None, None, None] * np.sqrt(var_ss)
+    live = tr[:, :, None, None]
+    fixed = ~undetermined[:, None, :, None]
+    separated = (live & fixed & (np.abs(dj) > thr + 1e-9)).any(axis=(1, 2, 3))
+    pl_j = thr + k_md[:, None, None, None] * np.sqrt(var_j + common)
+    pl = np.maximum(pl, np.where(live, pl_j, 0.0).max(axis=1))
+    return sigma, np.hypot(pl[..., 0], pl[..., 1]), pl[..., 2], separated, ill
+
+
+def test_levels_kernel_is_the_numpy_expression() -> None:
+    """Random covariance blocks (positive definite, some hypotheses with inf or nan blocks or
+    variances below the all-in-view ones), separations near their thresholds, exact
+    separations in some trials, trusted and undetermined drones: the same levels, sigma,
+    separation test and unfixed drones as the numpy lines."""
+    rng = np.random.default_rng(3)
+    hits = 0
+    for k in range(300):
+        T, n = int(rng.integers(1, 4)), int(rng.integers(2, 12))
+        A = rng.normal(size=(T, n, 3, 3))
+        C0 = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(3)
+        B = rng.normal(size=(T, n, n, 3, 3))
+        Cj = C0[:, None] + B @ np.swapaxes(B, -1, -2) * rng.uniform(0, 3)
+        Cj[rng.random((T, n, n)) < 0.05] *= -0.5  # below the all-in-view: var_ss clipped at 0
+        if k % 5 == 0:
+            Cj[rng.random((T, n, n)) < 0.1] = np.inf
+        if k % 7 == 0:
+            Cj[rng.random((T, n, n)) < 0.1] = np.nan
+        dj = rng.normal(0, 3, (T, n, n, 3))
+        exact = np.where(rng.random((T, n, n, 3)) < 0.3 * (k % 2), rng.normal(0, 3, (T, n, n, 3)), np.nan)
+        tr = rng.random((T, n)) < 0.7
+        und = rng.random((T, n)) < 0.1
+        l0 = np.exp(rng.uniform(-3, 3, (T, n)))
+        common = np.zeros(3) if k % 3 else np.array([0.5, 0.5, 1.0])
+        k_fa, k_md = rng.uniform(2, 5, T), rng.uniform(2, 5, T)
+        mc = float(rng.choice([1e6, 1e3, 10.0]))
+        with np.errstate(all="ignore"):
+            want = levels_reference(C0, Cj, dj, exact, tr, und, l0, common, k_fa, k_md, mc)
+        sigma, hpl, vpl = np.empty((T, n, 3)), np.empty((T, n)), np.empty((T, n))
+        sep, ill = np.empty(T, dtype=bool), np.empty((T, n), dtype=bool)
+        levels_kernel(C0, Cj, dj, exact, tr, und, l0, common, k_fa, k_md, mc, sigma, hpl, vpl, sep, ill)
+        for got, ref in zip((sigma, hpl, vpl), want[:3], strict=True):
+            same(got, ref)
+        np.testing.assert_array_equal(sep, want[3])
+        np.testing.assert_array_equal(ill, want[4])
+        hits += int(sep.sum()) + int((~sep).sum() > 0)
+    assert hits > 100

@@ -59,6 +59,7 @@ from swarmraft.estimation.joint import (
     tests_pass,
     weighted_gauss_newton,
 )
+from swarmraft.estimation.levels import levels_kernel
 from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information, prior_held
 from swarmraft.estimation.registrations import Candidates, candidates, distinct_explanations
@@ -350,39 +351,6 @@ def _eigenvalues(C: np.ndarray) -> np.ndarray:
     return out
 
 
-def _unfixed(C: np.ndarray, largest0: np.ndarray, max_condition: float) -> np.ndarray:
-    """Blocks C (..., 3, 3) that do not fix a position (...): largest over smallest
-    eigenvalue above ``max_condition``, or largest eigenvalue above 1e6 times ``largest0``
-    (the all-in-view block's), from `_eigenvalues` (the lower triangle, as LAPACK reads it).
-    Eigenvalues are computed only where a bound cannot decide: a block that is clearly
-    positive definite (leading minors positive by a margin far above rounding) with
-    largest/smallest <= F^3 / det <= max_condition / 2 and largest <= F <= 5e5 largest0
-    (F its Frobenius norm, which bounds every eigenvalue; the smallest is >= det / F^2) is
-    fixed. Most blocks are, and 3x3 eigenvalue problems were most of this test's time."""
-    a, b, c = C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]
-    d, e, f = C[..., 1, 0], C[..., 2, 0], C[..., 2, 1]
-    with np.errstate(all="ignore"):
-        F = np.sqrt(a * a + b * b + c * c + 2 * (d * d + e * e + f * f))
-        minor2 = a * b - d * d
-        det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
-        fixed = (
-            np.isfinite(C).all(axis=(-1, -2))  # as `_eigenvalues`: any non-finite entry is unfixed
-            & (a > 0)
-            & (minor2 > 1e-10 * F * F)
-            & (det >= 2 * F**3 / max_condition)
-            & (F <= 5e5 * np.maximum(largest0, 1e-300))
-        )
-    out = np.zeros(fixed.shape, dtype=bool)
-    rest = ~fixed
-    if rest.any():
-        ev = _eigenvalues(C[rest])
-        big0 = np.broadcast_to(largest0, out.shape)[rest]
-        out[rest] = (ev[..., 2] > max_condition * np.maximum(ev[..., 0], 1e-300)) | (
-            ev[..., 2] > 1e6 * np.maximum(big0, 1e-300)
-        )
-    return out
-
-
 @dataclass(frozen=True)
 class Assessment:
     """status (T,), per-drone status (T, n), hpl and vpl (T, n) in m, positions (T, n, 3)
@@ -470,9 +438,6 @@ def assess(
         C0 = _blocks(P0)  # (t, n, 3, 3)
         ev = _eigenvalues(C0)
         undetermined[s] |= ev[..., 2] > p.max_condition * np.maximum(ev[..., 0], 1e-300)
-        var0 = np.diagonal(C0, axis1=-2, axis2=-1) + common
-        sigma[s] = np.sqrt(var0)
-        pl = k_md[s, None, None] * np.sqrt(var0)  # fault-free
         # P_j = (J - A_j)^-1 per hypothesis j, by the Woodbury identity from P0; one
         # Gauss-Newton step of the subset problem from x0, where the full gradient is zero:
         # the separation is P_j times the gradient b_j of what hypothesis j leaves out
@@ -486,27 +451,38 @@ def assess(
             Pa = _inverse(J[a] - _hypothesis_matrix(terms, a, j))
             Cj[a, j] = _blocks(Pa)
             # an inverse that is not finite (the hypothesis leaves something unfixed) gives
-            # nan separations (inf * 0), never taken below; `_unfixed` calls its blocks unfixed
+            # nan separations (inf * 0), never taken below; `levels.unfixed_block` calls its blocks unfixed
             with np.errstate(invalid="ignore"):
                 dj[a, j] = (Pa @ b[a, j]).reshape(n, 3)
-        dj = np.where(np.isfinite(exact[s]), exact[s], dj)  # re-solved where the set is small
-        # unfixed without drone j: ill-conditioned, or its variance inflated a millionfold
-        # (no other measurement of it at all)
-        ill = _unfixed(Cj, ev[:, None, :, 2], p.max_condition)
-        unverifiable[s] |= (tr[:, :, None] & ill).any(axis=1) & ~undetermined[s]
-        var_j = np.diagonal(Cj, axis1=-2, axis2=-1)  # (t, j, n, 3)
-        with np.errstate(invalid="ignore"):  # inf - inf (a drone unfixed either way): nan, never separated
-            var_ss = np.maximum(var_j - np.diagonal(C0, axis1=-2, axis2=-1)[:, None], 0.0)
-        thr = k_fa[s, None, None, None] * np.sqrt(var_ss)
-        live = tr[:, :, None, None]
-        fixed = ~undetermined[s][:, None, :, None]
-        separated = (live & fixed & (np.abs(dj) > thr + 1e-9)).any(axis=(1, 2, 3))
-        cause[s] = np.where(~alarm[s] & separated, "separation test", cause[s])
-        alarm[s] |= separated
-        pl_j = thr + k_md[s, None, None, None] * np.sqrt(var_j + common)
-        pl = np.maximum(pl, np.where(live, pl_j, 0.0).max(axis=1))
-        hpl[s] = np.hypot(pl[..., 0], pl[..., 1])
-        vpl[s] = pl[..., 2]
+        # the rest in one compiled pass (`levels.levels_kernel`): per axis, the fault-free
+        # level k_md sqrt(var0) and each trusted hypothesis' separation threshold
+        # k_fa sqrt(var_j - var0) and level threshold + k_md sqrt(var_j); the separation test
+        # |dj| > threshold on fixed drones (dj re-solved, ``exact``, where the set is small);
+        # drones a hypothesis leaves unfixed (`levels.unfixed_block`: ill-conditioned, or the variance
+        # inflated a millionfold: no other measurement of it at all)
+        t_s = tr.shape[0]
+        sep, ill = np.empty(t_s, dtype=bool), np.empty((t_s, n), dtype=bool)
+        levels_kernel(
+            np.ascontiguousarray(C0),
+            np.ascontiguousarray(Cj),
+            np.ascontiguousarray(dj),
+            np.ascontiguousarray(exact[s]),
+            np.ascontiguousarray(tr),
+            np.ascontiguousarray(undetermined[s]),
+            np.ascontiguousarray(ev[..., 2]),
+            np.asarray(common, float),
+            np.ascontiguousarray(k_fa[s], float),
+            np.ascontiguousarray(k_md[s], float),
+            float(p.max_condition),
+            sigma[s],
+            hpl[s],
+            vpl[s],
+            sep,
+            ill,
+        )
+        unverifiable[s] |= ill & ~undetermined[s]
+        cause[s] = np.where(~alarm[s] & sep, "separation test", cause[s])
+        alarm[s] |= sep
     # a solver that has not converged is an alarm, unless it crawls along a direction the
     # geometry does not fix (then the drones concerned are degenerate)
     crawl = ~est.converged & ~undetermined.any(axis=1)

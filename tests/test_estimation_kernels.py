@@ -437,3 +437,50 @@ def test_levels_kernel_is_the_numpy_expression() -> None:
         np.testing.assert_array_equal(ill, want[4])
         hits += int(sep.sum()) + int((~sep).sum() > 0)
     assert hits > 100
+
+
+def initial_positions_reference(reported, ranges, trusted, prior, fast):
+    """`joint.initial_positions` as numpy selected its problems."""
+    x = np.array(reported, dtype=float, copy=True)
+    if prior is not None:
+        use = ~trusted & ~np.isnan(prior).any(axis=2)
+        x[use] = prior[use]
+    n = x.shape[1]
+    towards = np.swapaxes(ranges, 1, 2)
+    dists = np.where(np.isnan(towards), ranges, towards)
+    t_idx, a_idx = np.nonzero(~trusted)
+    mask = trusted[t_idx] & ~np.isnan(dists[t_idx, a_idx]) & (np.arange(n)[None, :] != a_idx[:, None])
+    ok = mask.sum(axis=1) >= 4
+    if ok.any():
+        est = linear_multilateration(reported[t_idx[ok]], dists[t_idx[ok], a_idx[ok]], mask[ok], fast)
+        x[t_idx[ok], a_idx[ok]] = est
+    return x
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("fast", [False, True])
+def test_initial_positions_kernel_is_the_numpy_selection(seed: int, fast: bool) -> None:
+    from swarmraft.estimation.joint import initial_positions
+
+    for b in batches(seed):
+        args = (b["reported"], b["ranges"], b["trusted"], b["prior"], fast)
+        with np.errstate(all="ignore"):
+            same(initial_positions(*args), initial_positions_reference(*args))
+
+
+def mirrored_reference(x, ranges, trusted):
+    """`robust.mirrored` in numpy: every drone's anchor plane, the untrusted ones reflected."""
+    _, _, mean, vec = anchor_planes(x, ranges, trusted)
+    normal = vec[..., :, 0]
+    h = np.einsum("tia,tia->ti", x - mean, normal)
+    return np.where(trusted[..., None], x, x - 2 * h[..., None] * normal)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_mirrored_kernel_is_the_numpy_expression(seed: int) -> None:
+    from swarmraft.estimation.robust import mirrored
+
+    for b in batches(seed):
+        args = (b["x"], b["ranges"], b["trusted"])
+        with np.errstate(all="ignore"):
+            same(mirrored(*args), mirrored_reference(*args))

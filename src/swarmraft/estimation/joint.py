@@ -22,7 +22,7 @@ from swarmraft.estimation.envelope import (
     range_share,
 )
 from swarmraft.estimation.noise import NoiseModel, gnss_information
-from swarmraft.estimation.trust_region import linear_multilateration
+from swarmraft.estimation.trust_region import _multilateration_kernel
 
 
 def _geometry(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -612,21 +612,53 @@ def initial_positions(
     solutions that 3 anchors leave), else at their report. ``fast``: see
     `trust_region.linear_multilateration`."""
     x = np.array(reported, dtype=float, copy=True)
-    if prior is not None:
-        use = ~trusted & ~np.isnan(prior).any(axis=2)
-        x[use] = prior[use]
-    T, n, _ = x.shape
-    towards = np.swapaxes(ranges, 1, 2)  # anchors' own measurements d_jA first
-    dists = np.where(np.isnan(towards), ranges, towards)
-    t_idx, a_idx = np.nonzero(~trusted)
-    if not t_idx.size:
-        return x
-    mask = trusted[t_idx] & ~np.isnan(dists[t_idx, a_idx]) & (np.arange(n)[None, :] != a_idx[:, None])
-    ok = mask.sum(axis=1) >= 4
-    if ok.any():
-        est = linear_multilateration(reported[t_idx[ok]], dists[t_idx[ok], a_idx[ok]], mask[ok], fast)
-        x[t_idx[ok], a_idx[ok]] = est
+    has_prior = prior is not None
+    _initial_kernel(
+        x,
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(trusted, np.bool_),
+        np.ascontiguousarray(prior, float) if has_prior else x,
+        has_prior,
+        bool(fast),
+    )
     return x
+
+
+@njit(cache=True)
+def _initial_kernel(x, ranges, trusted, prior, has_prior, fast):  # pragma: no cover - compiled
+    """`initial_positions` in place on x (T, n, 3), the reports on entry: each untrusted drone
+    a at its prior (where ``has_prior`` and its row has no nan), then, with 4 or more trusted
+    anchors k that have a range with it (the anchor's own d_ka first, else d_ak), by
+    `trust_region._multilateration_kernel` on that problem alone (the same inputs as the
+    numpy selection that fed it, so the same bits)."""
+    T, n, _ = x.shape
+    anchors = np.empty((1, n, 3))
+    dists = np.zeros((1, n))
+    mask = np.zeros((1, n), dtype=np.bool_)
+    out = np.empty((1, 3))
+    for t in range(T):
+        for i in range(n):
+            for c in range(3):
+                anchors[0, i, c] = x[t, i, c]  # the reports: no drone moved yet
+        for a in range(n):
+            if trusted[t, a]:
+                continue
+            if has_prior and not np.isnan(prior[t, a]).any():
+                for c in range(3):
+                    x[t, a, c] = prior[t, a, c]
+            cnt = 0
+            for k in range(n):
+                d = ranges[t, k, a]
+                if np.isnan(d):
+                    d = ranges[t, a, k]
+                dists[0, k] = d
+                mask[0, k] = trusted[t, k] and k != a and not np.isnan(d)
+                if mask[0, k]:
+                    cnt += 1
+            if cnt >= 4:
+                _multilateration_kernel(anchors, dists, mask, out, fast)
+                for c in range(3):
+                    x[t, a, c] = out[0, c]
 
 
 def joint_estimate(

@@ -307,41 +307,79 @@ def _anchor_planes_kernel(x, anchors, cnt, mean, vec):  # pragma: no cover - com
     expressions it replaced (einsum's sums over the anchors in order, then
     np.linalg.eigh, the same LAPACK routine), so bit for bit the same."""
     T, n, _ = x.shape
-    S = np.empty((3, 3))
     for t in range(T):
         for i in range(n):
-            c = 0.0
-            m0 = 0.0
-            m1 = 0.0
-            m2 = 0.0
-            for k in range(n):
-                w = 1.0 if anchors[t, i, k] else 0.0
-                c += w
-                m0 += w * x[t, k, 0]
-                m1 += w * x[t, k, 1]
-                m2 += w * x[t, k, 2]
-            cnt[t, i] = c
-            div = max(c, 1.0)
-            mean[t, i, 0] = m0 / div
-            mean[t, i, 1] = m1 / div
-            mean[t, i, 2] = m2 / div
+            cnt[t, i] = _plane(x[t], anchors[t, i], mean[t, i], vec[t, i])
+
+
+@njit(cache=True)
+def _plane(xt, anchors, mean, vec):  # pragma: no cover - compiled
+    """One drone's anchors (n,) at xt (n, 3): their count (returned), centroid (in place on
+    mean (3,)) and principal axes (on vec (3, 3)), as `_anchor_planes_kernel` computes them."""
+    n = xt.shape[0]
+    S = np.empty((3, 3))
+    c = 0.0
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for k in range(n):
+        w = 1.0 if anchors[k] else 0.0
+        c += w
+        m0 += w * xt[k, 0]
+        m1 += w * xt[k, 1]
+        m2 += w * xt[k, 2]
+    div = max(c, 1.0)
+    mean[0] = m0 / div
+    mean[1] = m1 / div
+    mean[2] = m2 / div
+    for a in range(3):
+        for b in range(3):
+            S[a, b] = 0.0
+    for k in range(n):
+        w = 1.0 if anchors[k] else 0.0
+        for a in range(3):
+            da = xt[k, a] - mean[a]
+            for b in range(3):
+                S[a, b] += w * da * (xt[k, b] - mean[b])
+    _, v = np.linalg.eigh(S)
+    vec[:, :] = v
+    return c
+
+
+@njit(cache=True)
+def _mirrored_kernel(x, ranges, trusted, out):  # pragma: no cover - compiled
+    """`mirrored` into out (T, n, 3): each untrusted drone's anchors' plane by `_plane` (the
+    same bits as `anchor_planes`), its height above it summed as numpy's einsum sums a
+    strided operand (in order), and the reflection x - 2 h normal; trusted drones as x."""
+    T, n, _ = x.shape
+    anchors = np.zeros(n, dtype=np.bool_)
+    mean = np.empty(3)
+    vec = np.empty((3, 3))
+    for t in range(T):
+        for i in range(n):
             for a in range(3):
-                for b in range(3):
-                    S[a, b] = 0.0
+                out[t, i, a] = x[t, i, a]
+            if trusted[t, i]:
+                continue
             for k in range(n):
-                w = 1.0 if anchors[t, i, k] else 0.0
-                for a in range(3):
-                    da = x[t, k, a] - mean[t, i, a]
-                    for b in range(3):
-                        S[a, b] += w * da * (x[t, k, b] - mean[t, i, b])
-            _, v = np.linalg.eigh(S)
-            vec[t, i] = v
+                anchors[k] = not np.isnan(ranges[t, k, i]) and trusted[t, k] and k != i
+            _plane(x[t], anchors, mean, vec)
+            h = ((x[t, i, 0] - mean[0]) * vec[0, 0] + (x[t, i, 1] - mean[1]) * vec[1, 0]) + (
+                x[t, i, 2] - mean[2]
+            ) * vec[2, 0]
+            for a in range(3):
+                out[t, i, a] = x[t, i, a] - 2 * h * vec[a, 0]
 
 
 def mirrored(x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray) -> np.ndarray:
     """x with every untrusted drone reflected across the best-fit plane of its anchors: a
-    start that reaches the other minimum of a near-coplanar geometry."""
-    _, _, mean, vec = anchor_planes(x, ranges, trusted)
-    normal = vec[..., :, 0]
-    h = np.einsum("tia,tia->ti", x - mean, normal)
-    return np.where(trusted[..., None], x, x - 2 * h[..., None] * normal)
+    start that reaches the other minimum of a near-coplanar geometry. One compiled kernel
+    (`_mirrored_kernel`: the planes of the untrusted drones only)."""
+    out = np.empty(np.shape(x))
+    _mirrored_kernel(
+        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(trusted, np.bool_),
+        out,
+    )
+    return out

@@ -209,3 +209,17 @@ def test_a_bad_batch_is_a_one_line_error(batch, needle, det):
         verify_batch(batch, det)
     with pytest.raises(ValueError, match=re.escape(needle)):
         verify_given(batch, np.ones((2, 6), bool), "joint")
+
+
+def test_valid_parameters_are_remembered_and_bad_ones_refused_each_time():
+    """`detector_params` validates a detector's parameters once (the same model object for
+    the same parameters, of the same types) and refuses a bad value every time."""
+    from swarmraft.estimation.registry import detector_params
+
+    a = detector_params("joint", f_max=3, p_fa=1e-3)
+    assert detector_params("joint", p_fa=1e-3, f_max=3) is a and a.f_max == 3
+    assert detector_params("joint", f_max=4) is not a and detector_params("clique", f_max=3) is not a
+    assert detector_params("joint", f_max=3.0, p_fa=1e-3) is not a  # another type: validated again
+    for _ in range(2):
+        with pytest.raises(ValueError, match="p_fa"):
+            detector_params("joint", p_fa=2.0)

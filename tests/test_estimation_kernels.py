@@ -484,3 +484,20 @@ def test_mirrored_kernel_is_the_numpy_expression(seed: int) -> None:
         args = (b["x"], b["ranges"], b["trusted"])
         with np.errstate(all="ignore"):
             same(mirrored(*args), mirrored_reference(*args))
+
+
+def test_first_copy_points_each_start_to_its_first_identical_one() -> None:
+    """`robust._first_copy`: per trial, a start bit for bit equal to an earlier one takes that
+    one's flat index (s T + t), itself otherwise; -0.0 and 0.0 differ in their bits."""
+    from swarmraft.estimation.robust import _first_copy
+
+    a, b = np.array([1.0, 2.0]), np.array([1.0, 3.0])
+    starts = np.array(
+        [
+            [a, a, [0.0, 1.0]],  # start 0 of trials 0, 1, 2
+            [b, a, [-0.0, 1.0]],  # start 1: a copy of start 0 in trial 1
+            [a, b, [0.0, 1.0]],  # start 2: copies of start 0 in trials 0 and 2
+            [b, b, [-0.0, 1.0]],  # start 3: of start 1 (trial 0), of 2 (trial 1), of 1 (trial 2)
+        ]
+    )
+    assert _first_copy(starts).tolist() == [0, 1, 2, 3, 1, 5, 0, 7, 2, 3, 7, 5]

@@ -21,7 +21,7 @@ from swarmraft.estimation.envelope import (
     envelope_solve,
     range_share,
 )
-from swarmraft.estimation.noise import NoiseModel, gnss_information
+from swarmraft.estimation.noise import NoiseModel, gnss_information, smallest_information
 from swarmraft.estimation.trust_region import _multilateration_kernel
 
 
@@ -794,12 +794,9 @@ def cannot_pass(
     global test then passes) is never ruled out here. Exact: a set ruled out is one no
     solver could make pass, so it need not be solved."""
     n = reported.shape[1]
-    lam = float(np.linalg.eigvalsh(gnss_information(gnss_cov))[0])
+    lam = smallest_information(gnss_cov)
     reach = 2.0 * np.sqrt(chi2_quantile(1 - p_fa / n, 3) / lam)
     measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
-    with np.errstate(invalid="ignore"):
-        gap = np.linalg.norm(reported[:, :, None] - reported[:, None], axis=3) - ranges
-    gap = np.where(measured, np.abs(gap), 0.0)
     own = (measured.sum(axis=2)[owner] * sets).sum(axis=1)
     dof = 3 * sets.sum(axis=1) + own - 3 * n
     # the quantile of each distinct dof once (a search's thousands of sets share a few)
@@ -807,18 +804,28 @@ def cannot_pass(
     limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
     limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
     beyond = np.zeros(len(sets), dtype=bool)
-    _pair_beyond(gap, np.ascontiguousarray(owner, np.int64), np.ascontiguousarray(sets, bool), limit, beyond)
+    _pair_beyond(
+        np.ascontiguousarray(reported, float),
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(owner, np.int64),
+        np.ascontiguousarray(sets, bool),
+        limit,
+        beyond,
+    )
     return beyond & (dof > 0) & np.isfinite(reported).all(axis=(1, 2))[owner]
 
 
 @njit(cache=True)
-def _pair_beyond(gap, owner, sets, limit, out):  # pragma: no cover - compiled
-    """out[b]: some two drones of set b have a ``gap`` (T, n, n) of trial owner[b] beyond
-    limit[b] (`cannot_pass`; a loop that stops at the first such pair, where numpy built three
-    (B, n, n) arrays: 3.7 ms of a search's step at n = 13, 5,812 sets)."""
+def _pair_beyond(reported, ranges, owner, sets, limit, out):  # pragma: no cover - compiled
+    """out[b]: some two drones i, j of set b have a range d_ij of trial owner[b] whose gap
+    ||z_i - z_j| - d_ij| to their reports z is beyond limit[b] (`cannot_pass`; |z_i - z_j|
+    summed in order, as np.linalg.norm sums; an unmeasured range has no gap, an infinite one
+    an infinite gap). A loop that stops at the first such pair, where numpy built three
+    (B, n, n) arrays: 3.7 ms of a search's step at n = 13, 5,812 sets."""
     n = sets.shape[1]
     for b in range(sets.shape[0]):
-        g = gap[owner[b]]
+        z = reported[owner[b]]
+        r = ranges[owner[b]]
         lim = limit[b]
         for i in range(n):
             if out[b]:
@@ -826,7 +833,12 @@ def _pair_beyond(gap, owner, sets, limit, out):  # pragma: no cover - compiled
             if not sets[b, i]:
                 continue
             for j in range(n):
-                if sets[b, j] and g[i, j] > lim:
+                if j == i or not sets[b, j] or np.isnan(r[i, j]):
+                    continue
+                d0 = z[i, 0] - z[j, 0]
+                d1 = z[i, 1] - z[j, 1]
+                d2 = z[i, 2] - z[j, 2]
+                if abs(np.sqrt((d0 * d0 + d1 * d1) + d2 * d2) - r[i, j]) > lim:
                     out[b] = True
                     break
 

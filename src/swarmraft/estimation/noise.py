@@ -67,6 +67,12 @@ def gnss_information(gnss_cov: np.ndarray) -> np.ndarray:
     return _memo("information", gnss_cov, np.linalg.inv)
 
 
+def smallest_information(gnss_cov: np.ndarray) -> float:
+    """The smallest eigenvalue of gnss_cov^-1 (the GNSS information along its weakest axis),
+    memoised as `gnss_information`."""
+    return float(_memo("eigenvalues", gnss_cov, lambda c: np.linalg.eigvalsh(gnss_information(c)))[0])
+
+
 def gnss_whitener(gnss_cov: np.ndarray) -> np.ndarray:
     """W (3, 3, C-contiguous) with W^T W = gnss_cov^-1: W e is a whitened GNSS error
     (memoised as `gnss_information`). Read only."""

@@ -216,13 +216,29 @@ def _first_copy(starts: np.ndarray) -> np.ndarray:
     """For starts (S, T, m), the flat index s T + t of each one's first bit-for-bit copy
     among the starts of its trial t (itself where none comes before it)."""
     S, T, _ = starts.shape
-    bits = np.ascontiguousarray(starts).view(np.uint64)
     source = np.arange(S * T).reshape(S, T)
+    _first_copy_kernel(np.ascontiguousarray(starts, float).view(np.uint64), source)
+    return source.ravel()
+
+
+@njit(cache=True)
+def _first_copy_kernel(bits, source):  # pragma: no cover - compiled
+    """`_first_copy` in place on source (S, T), each start's own flat index on entry: start s
+    of trial t takes the source of the first earlier start e whose bits are all equal (an
+    earlier start that is itself a copy passes its source on)."""
+    S, T, m = bits.shape
     for s in range(1, S):
         for e in range(s):
-            same = (bits[s] == bits[e]).all(axis=1) & (source[s] == s * T + np.arange(T))
-            source[s][same] = source[e][same]
-    return source.ravel()
+            for t in range(T):
+                if source[s, t] != s * T + t:
+                    continue
+                same = True
+                for k in range(m):
+                    if bits[s, t, k] != bits[e, t, k]:
+                        same = False
+                        break
+                if same:
+                    source[s, t] = source[e, t]
 
 
 def _placed(anchors: np.ndarray, x: np.ndarray, trusted: np.ndarray) -> np.ndarray:

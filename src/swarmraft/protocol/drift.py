@@ -57,7 +57,10 @@ class DriftModel:
 
     def variance(self) -> np.ndarray:
         """(M, 3): per-axis variance of an honest drone's mean innovation over its last m
-        windows, m = 1..M (row m - 1)."""
+        windows, m = 1..M (row m - 1). Remembered per model (read only)."""
+        return _variance(self)
+
+    def _variance(self) -> np.ndarray:
         m = np.arange(1, self.windows + 1, dtype=float)[:, None]
         g = np.array([self.gnss_sigma[0], self.gnss_sigma[0], self.gnss_sigma[1]]) ** 2
         b = np.array([self.ins_sigma[0], self.ins_sigma[0], self.ins_sigma[1]]) ** 2
@@ -67,6 +70,13 @@ class DriftModel:
     def threshold(self, rate: float) -> float:
         """The statistic's threshold at ``rate`` per step (chi-square 3 dof at rate / M)."""
         return _chi2_isf(rate / self.windows, 3)
+
+
+@lru_cache(maxsize=64)
+def _variance(model: DriftModel) -> np.ndarray:
+    out = model._variance()
+    out.flags.writeable = False  # shared by every caller
+    return out
 
 
 @lru_cache(maxsize=64)

@@ -446,9 +446,12 @@ def compute_record(
     gate = np.zeros(n, dtype=bool)
     sig = np.maximum([c.innovation_sigma[0], c.innovation_sigma[0], c.innovation_sigma[1]], MIN_SIGMA)
     if c.innovation_gate is not None:
+        inn = np.full((n, 3), np.nan)
         for i, r in reports.items():
-            if r.innovation is not None and np.isfinite(r.innovation).all():
-                gate[i] = np.sum((r.innovation / sig) ** 2) > c.innovation_gate
+            if r.innovation is not None:
+                inn[i] = r.innovation
+        # each row summed as np.sum sums one innovation (a drone without a finite one: no gate)
+        gate = np.isfinite(inn).all(axis=1) & (np.sum((inn / sig) ** 2, axis=1) > c.innovation_gate)
     # Drag-off over time (`protocol.drift`): each drone's window innovations, and their mean
     # over the drones not already found (a common slow drag of several drones). A drone found
     # dragged is left out of the snapshot detector, as a drone without a fix (it is placed

@@ -15,6 +15,7 @@ from pydantic import ValidationError
 from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
 from swarmraft.protocol.audit import FUTURE_STEPS, POSITION_TOL_M
 from swarmraft.protocol.drone import Prior, compute_record
+from swarmraft.protocol.records import well_formed
 from swarmraft.raft import Entry, EntryKind, MemoryStorage, Message, MsgType, RaftConfig, RaftNode
 from swarmraft.sim.mission import run_mission
 from swarmraft.sim.runtime import Cluster
@@ -549,6 +550,7 @@ def test_a_malformed_signed_report_is_kept_by_no_one(change, why) -> None:
     prior = Prior(rec.prior_step, rec.prior_positions, rec.prior_faulty)
     honest = replace(compute_record(12, 1, reports, prior, v.config), leader=rec.leader)
     carried = tuple(bad if q.drone == 4 else q for q in honest.reports)
+    assert well_formed(honest.reports, N) and not well_formed(carried, N)  # all at once
     got, reason = v.audit.check(resealed(replace(honest, reports=carried), keys), 1)
     assert got is None and reason == f"drone 5's report: {why}"
 

@@ -43,7 +43,7 @@ import numpy as np
 
 from swarmraft.protocol.drone import PRIOR_STEPS, Prior, memo_compute
 from swarmraft.protocol.memo import record_digest
-from swarmraft.protocol.records import Report, StepRecord, canonical_params, settled
+from swarmraft.protocol.records import Report, StepRecord, canonical_params, settled, well_formed
 from swarmraft.raft import Entry, EntryKind, Snapshot
 
 if TYPE_CHECKING:
@@ -306,10 +306,11 @@ class Auditor:
         drones = [r.drone for r in rec.reports]
         if drones != sorted(set(drones)) or not 0 <= drones[0] <= drones[-1] < c.n:
             return "reports out of order, repeated or out of range"
+        formed = well_formed(rec.reports, c.n)  # all at once; one by one only for the reason
         for r in rec.reports:
             if r.step != rec.step:
                 return f"drone {r.drone + 1}'s report is for step {r.step}"
-            if (why := r.malformed(c.n)) is not None:  # an honest leader keeps none such
+            if not formed and (why := r.malformed(c.n)) is not None:  # an honest leader keeps none such
                 return f"drone {r.drone + 1}'s report: {why}"
             if not keys.verify(r):
                 return f"drone {r.drone + 1}'s report signature"

@@ -151,6 +151,23 @@ class Report:
         )
 
 
+def well_formed(reports: tuple[Report, ...] | list[Report], n: int) -> bool:
+    """True only if no report is `Report.malformed` in a swarm of n: every check at once, for
+    a record's reports (an audit read 17 reports one by one, 55 us a step); False where some
+    check fails or the arrays do not stack (ask each report then, for the reason)."""
+    try:
+        pos = np.array([r.position for r in reports], float)
+        rng = np.array([r.ranges for r in reports], float)
+    except (ValueError, TypeError):
+        return False
+    if pos.shape != (len(reports), 3) or rng.shape != (len(reports), n):
+        return False
+    if not (np.abs(pos) <= MAX_M).all() or not distances_ok(rng):
+        return False
+    extra = [np.ravel(v) for r in reports for v in (r.innovation, r.drift, r.ins) if v is not None]
+    return not extra or not (np.abs(np.concatenate(extra).astype(float)) > MAX_M).any()
+
+
 @dataclass(frozen=True)
 class StepRecord:
     """The replicated entry of one step: verified positions (n, 3) (nan = missing or not

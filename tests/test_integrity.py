@@ -593,6 +593,9 @@ def test_each_hypothesis_by_woodbury_equals_inverting_it(n, untrusted, missing):
     # P0 carries `_inverse`'s ridge (1e-10 of the largest information): about 1e-7 of the scale
     assert np.allclose(Cj[ok], want_C[ok], rtol=1e-6, atol=1e-6 * np.abs(want_C[ok]).max())
     assert np.allclose(dj[ok], want_d[ok], rtol=1e-6, atol=1e-6 * np.abs(want_d[ok]).max())
+    # an untrusted drone's hypothesis is the all-in-view one exactly, with no step
+    blocks0 = np.broadcast_to(itg._blocks(P0)[:, None], Cj.shape)
+    assert np.array_equal(Cj[~trusted], blocks0[~trusted]) and not dj[~trusted].any()
 
 
 def test_the_trusted_information_is_the_sum_of_each_hypothesis_information():

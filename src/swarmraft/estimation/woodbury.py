@@ -44,6 +44,16 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
         for j in range(n):
             g = gnss[t, j]
             o = 3 * j
+            if g == 0.0 and not (w[t, j] > 0).any():
+                # an untrusted drone's hypothesis leaves nothing out: the all-in-view blocks,
+                # and no step (what the identity gives with its columns all zero)
+                for i in range(n):
+                    for a in range(3):
+                        for c in range(3):
+                            Cj[t, j, i, a, c] = P0[t, 3 * i + a, 3 * i + c]
+                for r in range(N):
+                    dj[t, j, r] = 0.0
+                continue
             # X = P0 U_j: GNSS columns P0[:, j] Gh g, range columns sqrt(w) (P0[:, j] - P0[:, k]) u
             for c in range(K):
                 sw[c] = np.sqrt(w[t, j, nb[t, j, c]])

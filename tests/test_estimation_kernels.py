@@ -118,11 +118,17 @@ def test_residuals_kernel_is_the_numpy_expression(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_own_cost_kernel_is_the_numpy_expression(seed: int) -> None:
+    """Each start's untrusted drones with the trusted ones at the anchors: the numpy
+    expression on the placed positions, start by start."""
+    rng = np.random.default_rng(seed)
     for b in batches(seed):
-        args = (b["x"], b["ranges"], b["trusted"], b["range_sigma"], b["prior"], b["prior_sigma"])
-        with np.errstate(all="ignore"):
-            want = own_cost_reference(*args)
-        same(want, _own_cost(*args))
+        X = b["x"][None] + rng.normal(0, 5, (3, *b["x"].shape))  # three starts
+        rest = (b["ranges"], b["trusted"], b["range_sigma"], b["prior"], b["prior_sigma"])
+        got = _own_cost(b["x"], X, *rest)
+        for s in range(3):
+            placed = np.where(b["trusted"][..., None], b["x"], X[s])
+            with np.errstate(all="ignore"):
+                same(own_cost_reference(placed, *rest), got[s])
 
 
 def test_gnc_kernel_is_the_numpy_loop() -> None:
@@ -501,3 +507,18 @@ def test_first_copy_points_each_start_to_its_first_identical_one() -> None:
         ]
     )
     assert _first_copy(starts).tolist() == [0, 1, 2, 3, 1, 5, 0, 7, 2, 3, 7, 5]
+
+
+def test_best_start_is_numpys_argmin() -> None:
+    """`robust._best`: per trial the converged start of lowest cost, or the lowest cost where
+    none converged, as np.argmin picks it (ties: the first; a nan: the first nan)."""
+    from swarmraft.estimation.robust import _best
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        S, T = int(rng.integers(1, 7)), int(rng.integers(1, 5))
+        cost = rng.choice([1.0, 2.0, 3.0, np.inf, np.nan], (S, T), p=[0.3, 0.3, 0.3, 0.05, 0.05])
+        conv = rng.random((S, T)) < 0.5
+        score = np.where(conv, cost, np.inf)
+        want = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
+        np.testing.assert_array_equal(_best(cost, conv), want)

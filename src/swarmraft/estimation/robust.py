@@ -141,14 +141,7 @@ def robust_estimate(
     # for every start (a start that moved the whole swarm is not a second minimum of one drone)
     anchors = X[best, t]
     # every start at once: (S, T, ...) as (S T, ...)
-    q = _own_cost(
-        _placed(np.tile(anchors, (S, 1, 1)), X.reshape(S * T, n, 3), np.tile(trusted, (S, 1))),
-        np.tile(ranges, (S, 1, 1)),
-        np.tile(trusted, (S, 1)),
-        noise.range_sigma,
-        None if pr is None else np.tile(pr, (S, 1, 1)),
-        prior_sigma,
-    ).reshape(S, T, n)
+    q = _own_cost(anchors, X, ranges, trusted, noise.range_sigma, pr, prior_sigma)
     q = np.where(conv[..., None], q, np.inf)
     pick = np.argmin(q, axis=0)  # (T, n)
     mixed = np.flatnonzero(((pick != best[:, None]) & ~trusted).any(axis=1))
@@ -165,13 +158,14 @@ def robust_estimate(
         q[-1, rows] = np.where(
             okr[:, None],
             _own_cost(
-                _placed(anchors[rows], Xr, trusted[rows]),
+                anchors[rows],
+                Xr[None],
                 ranges[rows],
                 trusted[rows],
                 noise.range_sigma,
                 None if pr is None else pr[rows],
                 prior_sigma,
-            ),
+            )[0],
             np.inf,
         )
 
@@ -199,7 +193,7 @@ def robust_estimate(
     # ambiguous: another converged minimum places the drone apart and fits as well, judged by
     # the whole cost or by the drone's own part of it
     near = conv & (cost <= c[None] + window)
-    own = _own_cost(_placed(anchors, x, trusted), ranges, trusted, noise.range_sigma, pr, prior_sigma)
+    own = _own_cost(anchors, x[None], ranges, trusted, noise.range_sigma, pr, prior_sigma)[0]
     own_near = q <= own[None] + window
     ambiguous = ((near[..., None] | own_near) & apart).any(axis=0) & ~trusted
     return Estimate(x, c, ok, ambiguous)
@@ -208,8 +202,34 @@ def robust_estimate(
 def _best(cost: np.ndarray, conv: np.ndarray) -> np.ndarray:
     """Per trial (T,), the start (of S) with the lowest converged cost, or the lowest cost
     where none converged."""
-    score = np.where(conv, cost, np.inf)
-    return np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
+    out = np.empty(cost.shape[1], dtype=np.int64)
+    _best_kernel(np.ascontiguousarray(cost, float), np.ascontiguousarray(conv, np.bool_), out)
+    return out
+
+
+@njit(cache=True)
+def _argmin(v):  # pragma: no cover - compiled
+    """np.argmin of v (S,): the first minimum, or the first nan if there is one."""
+    best = 0
+    for s in range(v.size):
+        if np.isnan(v[s]):
+            return s
+        if v[s] < v[best]:
+            best = s
+    return best
+
+
+@njit(cache=True)
+def _best_kernel(cost, conv, out):  # pragma: no cover - compiled
+    """`_best` in place on out (T,), as np.argmin decides (its nan rule included)."""
+    S, T = cost.shape
+    score = np.empty(S)
+    for t in range(T):
+        some = False
+        for s in range(S):
+            some = some or conv[s, t]
+            score[s] = cost[s, t] if conv[s, t] else np.inf
+        out[t] = _argmin(score) if some else _argmin(cost[:, t].copy())
 
 
 def _first_copy(starts: np.ndarray) -> np.ndarray:
@@ -241,30 +261,29 @@ def _first_copy_kernel(bits, source):  # pragma: no cover - compiled
                     source[s, t] = source[e, t]
 
 
-def _placed(anchors: np.ndarray, x: np.ndarray, trusted: np.ndarray) -> np.ndarray:
-    """Trusted drones at ``anchors``, untrusted ones at ``x``."""
-    return np.where(trusted[..., None], anchors, x)
-
-
 def _own_cost(
-    x: np.ndarray,
+    anchors: np.ndarray,
+    X: np.ndarray,
     ranges: np.ndarray,
     trusted: np.ndarray,
     range_sigma: float,
     prior: np.ndarray | None,
     prior_sigma: float | None,
 ) -> np.ndarray:
-    """Per untrusted drone j (T, n; 0 for trusted ones): the chi-square of the ranges trusted
-    drones measured to it, and of its prior: the part of the joint cost only x_j changes."""
-    T, n, _ = x.shape
+    """Per start s and untrusted drone j (S, T, n; 0 for trusted ones), with the trusted
+    drones at ``anchors`` (T, n, 3) and the untrusted ones where start s put them (X
+    (S, T, n, 3)): the chi-square of the ranges trusted drones measured to it, and of its
+    prior: the part of the joint cost only x_j changes."""
+    S, T, n, _ = X.shape
     has_prior = prior is not None and bool(prior_sigma)
-    out = np.empty((T, n))
+    out = np.empty((S, T, n))
     _own_cost_kernel(
-        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(anchors, float),
+        np.ascontiguousarray(X, float),
         np.ascontiguousarray(ranges, float),
         np.ascontiguousarray(trusted, np.bool_),
         float(range_sigma) ** 2,
-        np.ascontiguousarray(prior, float) if has_prior else x,
+        np.ascontiguousarray(prior, float) if has_prior else anchors,
         float(prior_sigma) ** 2 if has_prior else 0.0,
         has_prior,
         out,
@@ -273,34 +292,41 @@ def _own_cost(
 
 
 @njit(cache=True)
-def _own_cost_kernel(x, ranges, trusted, s2, prior, p2, has_prior, out):  # pragma: no cover
-    """`_own_cost` in place on out (T, n), in the order of operations of the numpy expression
-    it replaced (a sum over the measuring drones i in order; an infinite range as +-DBL_MAX,
-    as nan_to_num made it), so bit for bit the same; ``prior`` is read only with ``has_prior``."""
-    T, n, _ = x.shape
+def _own_cost_kernel(anchors, X, ranges, trusted, s2, prior, p2, has_prior, out):  # pragma: no cover
+    """`_own_cost` in place on out (S, T, n), in the order of operations of the numpy
+    expression it replaced (a sum over the measuring drones i in order; an infinite range as
+    +-DBL_MAX, as nan_to_num made it), so bit for bit the same; ``prior`` is read only with
+    ``has_prior``."""
+    S, T, n, _ = X.shape
     big = np.finfo(np.float64).max
     col = np.empty(n)
-    for t in range(T):
-        for j in range(n):
-            col[j] = 0.0
-        for i in range(n):
+    x = np.empty((n, 3))
+    for s in range(S):
+        for t in range(T):
+            for i in range(n):
+                src = anchors[t, i] if trusted[t, i] else X[s, t, i]
+                for a in range(3):
+                    x[i, a] = src[a]
             for j in range(n):
-                d = ranges[t, i, j]
-                v = 0.0
-                if trusted[t, i] and not np.isnan(d):
-                    if np.isinf(d):
-                        d = big if d > 0 else -big
-                    r = pair_distance(x[t], i, j) - d
-                    v = r * r
-                col[j] = v if i == 0 else col[j] + v
-        for j in range(n):
-            r2 = col[j] / s2
-            if has_prior and np.isfinite(prior[t, j]).all():
-                e0 = x[t, j, 0] - prior[t, j, 0]
-                e1 = x[t, j, 1] - prior[t, j, 1]
-                e2 = x[t, j, 2] - prior[t, j, 2]
-                r2 = r2 + ((e0 * e0 + e1 * e1) + e2 * e2) / p2
-            out[t, j] = 0.0 if trusted[t, j] else r2
+                col[j] = 0.0
+            for i in range(n):
+                for j in range(n):
+                    d = ranges[t, i, j]
+                    v = 0.0
+                    if trusted[t, i] and not np.isnan(d):
+                        if np.isinf(d):
+                            d = big if d > 0 else -big
+                        r = pair_distance(x, i, j) - d
+                        v = r * r
+                    col[j] = v if i == 0 else col[j] + v
+            for j in range(n):
+                r2 = col[j] / s2
+                if has_prior and np.isfinite(prior[t, j]).all():
+                    e0 = x[j, 0] - prior[t, j, 0]
+                    e1 = x[j, 1] - prior[t, j, 1]
+                    e2 = x[j, 2] - prior[t, j, 2]
+                    r2 = r2 + ((e0 * e0 + e1 * e1) + e2 * e2) / p2
+                out[s, t, j] = 0.0 if trusted[t, j] else r2
 
 
 def anchor_planes(

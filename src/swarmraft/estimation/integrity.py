@@ -59,7 +59,7 @@ from swarmraft.estimation.joint import (
     tests_pass,
     weighted_gauss_newton,
 )
-from swarmraft.estimation.levels import levels_kernel
+from swarmraft.estimation.levels import blocks_kernel, eigenvalues_kernel, levels_kernel
 from swarmraft.estimation.mirror import mirror_ambiguous
 from swarmraft.estimation.noise import NoiseModel, NoiseParams, gnss_information, prior_held
 from swarmraft.estimation.registrations import Candidates, candidates, distinct_explanations
@@ -326,12 +326,12 @@ def subset_separations(
 
 
 def _blocks(P: np.ndarray) -> np.ndarray:
-    """3x3 diagonal blocks (..., n, 3, 3) of matrices (..., 3n, 3n)."""
+    """3x3 diagonal blocks (..., n, 3, 3) of matrices (..., 3n, 3n) (`levels.blocks_kernel`)."""
     *lead, N, _ = P.shape
-    n = N // 3
-    Q = P.reshape(*lead, n, 3, n, 3)
-    idx = np.arange(n)
-    return np.moveaxis(Q[..., idx, :, idx, :], 0, -3)
+    flat = np.ascontiguousarray(P, float).reshape(-1, N, N)
+    out = np.empty((flat.shape[0], N // 3, 3, 3))
+    blocks_kernel(flat, out)
+    return out.reshape(*lead, N // 3, 3, 3)
 
 
 def _inverse(J: np.ndarray) -> np.ndarray:
@@ -343,12 +343,12 @@ def _inverse(J: np.ndarray) -> np.ndarray:
 
 
 def _eigenvalues(C: np.ndarray) -> np.ndarray:
-    """Ascending eigenvalues of symmetric 3x3 blocks; inf where a block is not finite."""
-    finite = np.isfinite(C).all(axis=(-1, -2))
-    out = np.full(C.shape[:-1], np.inf)
-    out[..., 0] = 0.0
-    out[finite] = np.linalg.eigvalsh(C[finite])
-    return out
+    """Ascending eigenvalues of symmetric 3x3 blocks (..., 3, 3) (their lower triangle); 0,
+    inf, inf where a block is not finite (`levels.eigenvalues_kernel`)."""
+    flat = np.ascontiguousarray(C, float).reshape(-1, 3, 3)
+    out = np.empty((flat.shape[0], 3))
+    eigenvalues_kernel(flat, out)
+    return out.reshape(*C.shape[:-1])
 
 
 @dataclass(frozen=True)

@@ -114,3 +114,37 @@ def levels_kernel(
             for j in range(n):
                 if trusted[t, j] and not ill[t, i]:
                     ill[t, i] = unfixed_block(Cj[t, j, i], largest0[t, i], max_condition)
+
+
+@njit(cache=True)
+def blocks_kernel(P, out):  # pragma: no cover - compiled
+    """The 3x3 diagonal blocks of matrices P (B, 3n, 3n) into out (B, n, 3, 3) (copies)."""
+    B, N, _ = P.shape
+    for b in range(B):
+        for i in range(N // 3):
+            for a in range(3):
+                for c in range(3):
+                    out[b, i, a, c] = P[b, 3 * i + a, 3 * i + c]
+
+
+@njit(cache=True)
+def eigenvalues_kernel(C, out):  # pragma: no cover - compiled
+    """Ascending eigenvalues of symmetric 3x3 blocks C (B, 3, 3) into out (B, 3), from each
+    block's lower triangle (np.linalg.eigvalsh's LAPACK routine: numpy's bits, 100,000 random
+    blocks of condition up to e^40 compared); 0, inf, inf where a block is not finite."""
+    S = np.empty((3, 3))
+    for b in range(C.shape[0]):
+        finite = True
+        for p in range(3):
+            for q in range(3):
+                finite = finite and np.isfinite(C[b, p, q])
+        if not finite:
+            out[b, 0] = 0.0
+            out[b, 1] = np.inf
+            out[b, 2] = np.inf
+            continue
+        for p in range(3):
+            for q in range(p + 1):
+                S[p, q] = C[b, p, q]
+                S[q, p] = C[b, p, q]
+        out[b] = np.linalg.eigvalsh(S)

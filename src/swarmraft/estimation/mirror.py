@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from swarmraft.estimation.noise import NoiseModel, prior_held
-from swarmraft.estimation.robust import anchor_planes
+from swarmraft.estimation.robust import anchor_planes_of
 
 
 @njit(cache=True)
@@ -221,7 +221,7 @@ def mirror_ambiguous(
     than that, the protection level covers the mirror)."""
     T, n, _ = x.shape
     towards = np.ascontiguousarray(np.swapaxes(ranges, 1, 2))  # d_ki: anchor k's measurement of i
-    anchors, cnt, mean, vec = anchor_planes(x, ranges, trusted)
+    anchors, cnt, mean, vec = anchor_planes_of(x, ranges, trusted, ~trusted)  # the untrusted drones' planes
     has_prior = prior_held(prior, prior_sigma, (T, n))
     pr = np.zeros((T, n, 3)) if prior is None else np.nan_to_num(prior)
     out = np.zeros((T, n), dtype=bool)

@@ -336,22 +336,38 @@ def anchor_planes(
     it; their count (T, i), centroid (T, i, 3) and principal axes (T, i, 3, 3), columns in
     ascending order of spread (column 0: the normal of their best-fit plane). One compiled
     kernel (numpy's per-call overhead on 17-drone arrays was most of its time)."""
+    return anchor_planes_of(x, ranges, trusted, np.ones(np.shape(trusted), dtype=bool))
+
+
+def anchor_planes_of(
+    x: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, which: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`anchor_planes`, the count, centroid and axes computed only for the drones ``which``
+    (T, n) marks (0 elsewhere); the anchors of every drone."""
     T, n, _ = x.shape
     anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
-    cnt, mean, vec = np.empty((T, n)), np.empty((T, n, 3)), np.empty((T, n, 3, 3))
-    _anchor_planes_kernel(np.ascontiguousarray(x, float), np.ascontiguousarray(anchors), cnt, mean, vec)
+    cnt, mean, vec = np.zeros((T, n)), np.zeros((T, n, 3)), np.zeros((T, n, 3, 3))
+    _anchor_planes_kernel(
+        np.ascontiguousarray(x, float),
+        np.ascontiguousarray(anchors),
+        np.ascontiguousarray(which),
+        cnt,
+        mean,
+        vec,
+    )
     return anchors, cnt, mean, vec
 
 
 @njit(cache=True)
-def _anchor_planes_kernel(x, anchors, cnt, mean, vec):  # pragma: no cover - compiled
-    """`anchor_planes`' count, centroid and axes, in the order of operations of the numpy
-    expressions it replaced (einsum's sums over the anchors in order, then
-    np.linalg.eigh, the same LAPACK routine), so bit for bit the same."""
+def _anchor_planes_kernel(x, anchors, which, cnt, mean, vec):  # pragma: no cover - compiled
+    """`anchor_planes`' count, centroid and axes of the drones ``which`` marks, in the order
+    of operations of the numpy expressions it replaced (einsum's sums over the anchors in
+    order, then np.linalg.eigh, the same LAPACK routine), so bit for bit the same."""
     T, n, _ = x.shape
     for t in range(T):
         for i in range(n):
-            cnt[t, i] = _plane(x[t], anchors[t, i], mean[t, i], vec[t, i])
+            if which[t, i]:
+                cnt[t, i] = _plane(x[t], anchors[t, i], mean[t, i], vec[t, i])
 
 
 @njit(cache=True)

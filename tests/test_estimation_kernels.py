@@ -545,3 +545,41 @@ def test_best_start_is_numpys_argmin() -> None:
         score = np.where(conv, cost, np.inf)
         want = np.where(conv.any(axis=0), np.argmin(score, axis=0), np.argmin(cost, axis=0))
         np.testing.assert_array_equal(_best(cost, conv), want)
+
+
+def test_pairwise_sum_is_numpys_sum() -> None:
+    """`joint.pairwise_sum`: numpy's sum of a contiguous row, bit for bit, at every length
+    up to PAIRWISE_MAX (its blocks of 128 and the halves and quarters of longer runs)."""
+    from swarmraft.estimation.joint import PAIRWISE_MAX, pairwise_sum
+
+    rng = np.random.default_rng(2)
+    for n in range(PAIRWISE_MAX + 1):
+        a = rng.normal(size=n) * rng.uniform(0.01, 1e6, n)
+        a[rng.random(n) < 0.2] = 0.0
+        assert pairwise_sum(a, 0, n) == a.sum(), n
+
+
+def residual_statistics_reference(x, reported, ranges, trusted, noise):
+    """`joint.residual_statistics` as numpy computed it."""
+    rg, rr = residuals(x, reported, ranges, noise.whitener, noise.range_sigma)
+    n = x.shape[1]
+    own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
+    gnss_q = np.where(trusted, np.einsum("tni,tni->tn", rg, rg), 0.0)
+    per = gnss_q + np.where(own, rr**2, 0.0).sum(axis=2)
+    dof = 3 * trusted.sum(axis=1) + own.sum(axis=(1, 2)) - 3 * n
+    return per, gnss_q, per.sum(axis=1), dof
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_residual_statistics_kernel_is_the_numpy_expression(seed: int) -> None:
+    from swarmraft.estimation.joint import residual_statistics
+    from swarmraft.estimation.noise import NoiseModel
+
+    cov = np.diag([1.5**2, 1.5**2, 3.0**2])
+    for b in batches(seed):
+        args = (b["x"], b["reported"], b["ranges"], b["trusted"], NoiseModel(cov, b["range_sigma"], None))
+        with np.errstate(all="ignore"):
+            for got, want in zip(
+                residual_statistics(*args), residual_statistics_reference(*args), strict=True
+            ):
+                same(np.asarray(got, float), np.asarray(want, float))

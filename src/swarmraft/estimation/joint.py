@@ -746,14 +746,118 @@ def residual_statistics(
     x: np.ndarray, reported: np.ndarray, ranges: np.ndarray, trusted: np.ndarray, noise: NoiseModel
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-drone chi-square contributions (T, n) of trusted drones (GNSS block + own ranges),
-    the GNSS blocks alone (T, n), the total (T,) and its degrees of freedom (T,)."""
+    the GNSS blocks alone (T, n), the total (T,) and its degrees of freedom (T,). One kernel
+    (`_statistics_kernel`) after `residuals`, in the order numpy's expressions summed."""
     rg, rr = residuals(x, reported, ranges, noise.whitener, noise.range_sigma)
-    n = x.shape[1]
-    own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
-    gnss_q = np.where(trusted, np.einsum("tni,tni->tn", rg, rg), 0.0)
-    per = gnss_q + np.where(own, rr**2, 0.0).sum(axis=2)
-    dof = 3 * trusted.sum(axis=1) + own.sum(axis=(1, 2)) - 3 * n
-    return per, gnss_q, per.sum(axis=1), dof
+    T, n, _ = rg.shape
+    if n > PAIRWISE_MAX:  # beyond the kernel's sums: numpy's expressions
+        own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool) & trusted[:, :, None]
+        gnss_q = np.where(trusted, np.einsum("tni,tni->tn", rg, rg), 0.0)
+        per = gnss_q + np.where(own, rr**2, 0.0).sum(axis=2)
+        return per, gnss_q, per.sum(axis=1), 3 * trusted.sum(axis=1) + own.sum(axis=(1, 2)) - 3 * n
+    per, gnss_q, total = np.empty((T, n)), np.empty((T, n)), np.empty(T)
+    dof = np.empty(T, dtype=np.int64)
+    _statistics_kernel(
+        rg,
+        rr,
+        np.ascontiguousarray(ranges, float),
+        np.ascontiguousarray(trusted, np.bool_),
+        per,
+        gnss_q,
+        total,
+        dof,
+    )
+    return per, gnss_q, total, dof
+
+
+@njit(cache=True)
+def _pairwise_block(a, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum of a[lo : lo + n], n <= 128 (its unrolled block)."""
+    if n < 8:
+        r = -0.0
+        for i in range(lo, lo + n):
+            r += a[i]
+        return r
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_2(a, lo, n):  # pragma: no cover - compiled
+    """numpy's split of a[lo : lo + n] in two, each half a block (n <= 242)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_block(a, lo, n2) + _pairwise_block(a, lo + n2, n - n2)
+
+
+@njit(cache=True)
+def _pairwise_3(a, lo, n):  # pragma: no cover - compiled
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_2(a, lo, n2) + _pairwise_2(a, lo + n2, n - n2)
+
+
+@njit(cache=True)
+def pairwise_sum(a, lo, n):  # pragma: no cover - compiled
+    """a[lo : lo + n].sum() as numpy sums a contiguous axis (pairwise: blocks of at most 128
+    in eight lanes, halves of longer runs summed apart), so a kernel gives its bits, for
+    n up to PAIRWISE_MAX (numpy's recursion unrolled three levels deep: numba's cache
+    cannot hold a recursive function)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_3(a, lo, n2) + _pairwise_3(a, lo + n2, n - n2)
+
+
+#: the longest run `pairwise_sum` sums as numpy does (halves of at most 484, quarters 242)
+PAIRWISE_MAX = 960
+
+
+@njit(cache=True)
+def _statistics_kernel(rg, rr, ranges, trusted, per, gnss_q, total, dof):  # pragma: no cover
+    """`residual_statistics` from the residuals rg (T, n, 3), rr (T, n, n), in place: each
+    trusted drone's |rg|^2 (einsum's three squares) plus the sum of its measured ranges'
+    rr^2 (numpy's pairwise sum of the row, unmeasured as 0), the total of those, and the
+    degrees of freedom 3 (trusted) + (ranges trusted drones measured) - 3 n."""
+    T, n, _ = rg.shape
+    row = np.empty(n)
+    for t in range(T):
+        count = 0
+        for i in range(n):
+            q = 0.0
+            if trusted[t, i]:
+                q = (rg[t, i, 0] * rg[t, i, 0] + rg[t, i, 2] * rg[t, i, 2]) + rg[t, i, 1] * rg[t, i, 1]
+                count += 3
+            gnss_q[t, i] = q
+            for j in range(n):
+                row[j] = 0.0
+                if trusted[t, i] and j != i and not np.isnan(ranges[t, i, j]):
+                    row[j] = rr[t, i, j] * rr[t, i, j]
+                    count += 1
+            per[t, i] = q + pairwise_sum(row, 0, n)
+        total[t] = pairwise_sum(per[t], 0, n)
+        dof[t] = count - 3 * n
 
 
 def chi2_quantile(q: float, dof: np.ndarray | int) -> np.ndarray:
@@ -799,9 +903,13 @@ def cannot_pass(
     measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
     own = (measured.sum(axis=2)[owner] * sets).sum(axis=1)
     dof = 3 * sets.sum(axis=1) + own - 3 * n
-    # the quantile of each distinct dof once (a search's thousands of sets share a few)
-    dofs, which = np.unique(np.maximum(dof, 1), return_inverse=True)
-    limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
+    # the quantile of each distinct dof once (a search's thousands of sets share a few); a
+    # few sets (the rival check's swaps) each their own: the same values, without np.unique
+    if len(sets) > 64:
+        dofs, which = np.unique(np.maximum(dof, 1), return_inverse=True)
+        limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
+    else:
+        limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
     limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
     beyond = np.zeros(len(sets), dtype=bool)
     _pair_beyond(

@@ -736,3 +736,18 @@ def test_a_verdict_without_protection_levels_is_not_judged_misleading():
     )
     assert m["misleading"][0] == 1 and np.isnan(m["misleading"][1])
     assert m["hpe"][0] == 30.0
+
+
+def test_status_rank_is_the_same_for_a_step_and_a_batch():
+    """`status_rank` ranks ok 0, degenerate 1, unidentifiable 2, alarm 3 and anything else 0,
+    by a dictionary for a step's few statuses and by numpy for a batch's many: the same."""
+    from swarmraft.estimation.integrity import STATUS_ORDER, status_rank
+
+    rng = np.random.default_rng(0)
+    names = np.array([*STATUS_ORDER, "other"], dtype=object)
+    many = names[rng.integers(0, 5, (40, 17))]
+    want = np.select([many == s for s in STATUS_ORDER], range(4), 0)
+    assert np.array_equal(status_rank(many), want)  # 680: numpy
+    for row, w in zip(many, want, strict=True):
+        assert np.array_equal(status_rank(row), w) and np.array_equal(status_rank(row.astype(str)), w)
+    assert status_rank(np.array("alarm")).shape == () and int(status_rank(np.array("alarm"))) == 3

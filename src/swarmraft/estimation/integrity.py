@@ -69,6 +69,7 @@ from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch, merged_ro
 from swarmraft.estimation.woodbury import hypotheses_kernel, without_each
 
 STATUS_ORDER = ("ok", "degenerate", "unidentifiable", "alarm")  # mildest first
+_RANK = {name: k for k, name in enumerate(STATUS_ORDER)}
 _MEMORY_FLOATS = 4_000_000  # per batch of hypothesis matrices (32 MB)
 
 
@@ -157,8 +158,13 @@ def resolve_f_max(p: IntegrityParams, n: int, detector: str) -> int:
 
 
 def status_rank(status: np.ndarray) -> np.ndarray:
-    """How serious each status is: ok 0, degenerate 1, unidentifiable 2, alarm 3."""
-    status = np.asarray(status).astype(str)
+    """How serious each status is: ok 0, degenerate 1, unidentifiable 2, alarm 3 (0 for
+    anything else)."""
+    status = np.asarray(status)
+    if status.size <= 64:  # a step's few: a dictionary (numpy's string calls cost more)
+        ranks = [_RANK.get(str(v), 0) for v in status.ravel().tolist()]
+        return np.array(ranks, dtype=int).reshape(status.shape)
+    status = status.astype(str)
     rank = np.zeros(status.shape, dtype=int)
     for k, name in enumerate(STATUS_ORDER):
         rank[status == name] = k

@@ -381,7 +381,7 @@ def _quiet(ranges, sigma, k, out):  # pragma: no cover - compiled
         G = np.eye(3) / _LOOSE
         gw = np.ones((1, n))
         levenberg_marquardt_kernel(
-            x, rep, ranges[t : t + 1], gw, w, G, 1.0 / sigma**2, 30, 1e-5, x, 0.0, cost, conv, False
+            x, rep, ranges[t : t + 1], gw, w, G, 1.0 / sigma**2, 30, 1e-5, x, 0.0, cost, conv, True
         )
         quiet = True
         for i in range(n):

@@ -188,15 +188,37 @@ def robust_estimate(
             won = okf & (cf < c[rows])
             x[rows[won]], c[rows[won]], ok[rows[won]] = Xf[won], cf[won], True
     far = max(10 * noise.range_sigma, float(np.sqrt(np.trace(noise.gnss_cov))))
-    with np.errstate(invalid="ignore"):
-        apart = np.linalg.norm(X - x[None], axis=3) > far
     # ambiguous: another converged minimum places the drone apart and fits as well, judged by
     # the whole cost or by the drone's own part of it
-    near = conv & (cost <= c[None] + window)
     own = _own_cost(anchors, x[None], ranges, trusted, noise.range_sigma, pr, prior_sigma)[0]
-    own_near = q <= own[None] + window
-    ambiguous = ((near[..., None] | own_near) & apart).any(axis=0) & ~trusted
+    ambiguous = np.empty((T, n), dtype=bool)
+    _ambiguous_kernel(X, x, cost, c, conv, q, own, np.ascontiguousarray(trusted), far, window, ambiguous)
     return Estimate(x, c, ok, ambiguous)
+
+
+@njit(cache=True)
+def _ambiguous_kernel(X, x, cost, c, conv, q, own, trusted, far, window, out):  # pragma: no cover
+    """`robust_estimate`'s ambiguity in place on out (T, n): an untrusted drone that some
+    start's minimum X (S, T, n, 3) places further than ``far`` from x (the distance summed as
+    np.linalg.norm sums) while fitting within ``window`` of the best, by its converged whole
+    cost (cost (S, T) against c (T,)) or by the drone's own part (q (S, T, n) against own
+    (T, n))."""
+    S, T, n, _ = X.shape
+    for t in range(T):
+        for i in range(n):
+            out[t, i] = False
+            if trusted[t, i]:
+                continue
+            for s in range(S):
+                d0 = X[s, t, i, 0] - x[t, i, 0]
+                d1 = X[s, t, i, 1] - x[t, i, 1]
+                d2 = X[s, t, i, 2] - x[t, i, 2]
+                if not np.sqrt((d0 * d0 + d1 * d1) + d2 * d2) > far:
+                    continue
+                near = conv[s, t] and cost[s, t] <= c[t] + window
+                if near or q[s, t, i] <= own[t, i] + window:
+                    out[t, i] = True
+                    break
 
 
 def _best(cost: np.ndarray, conv: np.ndarray) -> np.ndarray:

@@ -84,3 +84,22 @@ def test_a_drone_does_not_check_its_own_signature_again_unless_its_keys_disagree
     # a public key that is not the private key's: nothing remembered, the check refuses
     wrong = Keyring(keys.private, {**keys.public, 1: keys.public[2]})
     assert not wrong.verify(report(wrong, drone=1)) and calls == [1]
+
+
+def test_a_decoded_report_keeps_its_bytes_only_where_they_are_its_encoding(monkeypatch) -> None:
+    """A decoded report's `body` is the bytes it came in (not encoded again: an audit reads
+    17 a step), which are its encoding; bytes with a header bit no decoder reads are not:
+    such a report's body is encoded again, so its signature is checked over what it says."""
+    keys = Keyring.generate(4, np.random.default_rng(1))
+    good = report(keys)
+    data = good.encode()
+    got = Report.decode(data)
+    calls = []
+    real = Report._encode_body
+    monkeypatch.setattr(Report, "_encode_body", lambda self: calls.append(1) or real(self))
+    assert got.body() == data[: len(data) - 64] == real(got) and not calls and keys.verify(got)
+    odd = bytearray(data)
+    odd[9] |= 8  # the parts byte: a part no decoder reads
+    back = Report.decode(bytes(odd))
+    assert back.body() == good.body() != bytes(odd[: len(odd) - 64]) and calls == [1]
+    assert keys.verify(back)  # the signature covers the encoding, which is the same

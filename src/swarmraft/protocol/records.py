@@ -138,7 +138,7 @@ class Report:
         if parts & 4:
             ins = np.frombuffer(data, "<f8", count=3, offset=size).copy()
             size += 24
-        return cls(
+        report = cls(
             step,
             drone,
             vals[:3].copy(),
@@ -149,6 +149,9 @@ class Report:
             drift,
             ins,
         )
+        if not parts & ~7:  # no part this decoder ignores: the bytes are `body`'s encoding
+            object.__setattr__(report, "_body", bytes(data[:size]))
+        return report
 
 
 def well_formed(reports: tuple[Report, ...] | list[Report], n: int) -> bool:

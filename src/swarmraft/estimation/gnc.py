@@ -174,6 +174,18 @@ def _gnc_kernel(
 
 
 @njit(cache=True)
+def _norm1(M):  # pragma: no cover - compiled
+    """The 1-norm of M (N, N): its largest column sum of absolute values."""
+    best = 0.0
+    for c in range(M.shape[1]):
+        s = 0.0
+        for k in range(M.shape[0]):
+            s += abs(M[k, c])
+        best = max(best, s)
+    return best
+
+
+@njit(cache=True)
 def _placement_q(x, reported, ranges, faulty, ask, G, cov, w_r, limit, q, sure):  # pragma: no cover
     """The re-inclusion statistic of `joint_detector` for the drones ``ask`` (T, n): each one's
     report minus x whitened by cov + C (C its 3x3 block of the inverse of the information of
@@ -220,25 +232,14 @@ def _placement_q(x, reported, ranges, faulty, ask, G, cov, w_r, limit, q, sure):
                         J[3 * j + a, 3 * j + b] += v
                         J[3 * i + a, 3 * j + b] -= v
                         J[3 * j + a, 3 * i + b] -= v
-        norm_j = 0.0
-        for c in range(N):
-            s = 0.0
-            for k in range(N):
-                s += abs(J[k, c])
-            norm_j = max(norm_j, s)
+        norm_j = _norm1(J)
         if not np.isfinite(norm_j) or _cholesky(J, N) <= 0.0:
             continue
         P[:, :] = 0.0
         for k in range(N):
             P[k, k] = 1.0
         _cholesky_solve_columns(J, N, P)
-        norm_p = 0.0
-        for c in range(N):
-            s = 0.0
-            for k in range(N):
-                s += abs(P[k, c])
-            norm_p = max(norm_p, s)
-        cond = norm_j * norm_p
+        cond = norm_j * _norm1(P)
         if not cond < 0.5 * MAX_CONDITION / N:  # numpy decides the band
             continue
         # how far apart the two computations' statistics can be: the margin, or the

@@ -799,22 +799,28 @@ def _pairwise_block(a, lo, n):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _half(n):  # pragma: no cover - compiled
+    """Where numpy's pairwise sum splits a run of n > 128: half of it, a multiple of 8 below."""
+    n2 = n // 2
+    return n2 - n2 % 8
+
+
+@njit(cache=True)
 def _pairwise_2(a, lo, n):  # pragma: no cover - compiled
-    """numpy's split of a[lo : lo + n] in two, each half a block (n <= 242)."""
+    """`pairwise_sum` of a run whose halves are blocks (n <= 242)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_block(a, lo, n2) + _pairwise_block(a, lo + n2, n - n2)
+    h = _half(n)
+    return _pairwise_block(a, lo, h) + _pairwise_block(a, lo + h, n - h)
 
 
 @njit(cache=True)
 def _pairwise_3(a, lo, n):  # pragma: no cover - compiled
+    """`pairwise_sum` of a run whose quarters are blocks (n <= 484)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_2(a, lo, n2) + _pairwise_2(a, lo + n2, n - n2)
+    h = _half(n)
+    return _pairwise_2(a, lo, h) + _pairwise_2(a, lo + h, n - h)
 
 
 @njit(cache=True)
@@ -825,9 +831,8 @@ def pairwise_sum(a, lo, n):  # pragma: no cover - compiled
     cannot hold a recursive function)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_3(a, lo, n2) + _pairwise_3(a, lo + n2, n - n2)
+    h = _half(n)
+    return _pairwise_3(a, lo, h) + _pairwise_3(a, lo + h, n - h)
 
 
 #: the longest run `pairwise_sum` sums as numpy does (halves of at most 484, quarters 242)

@@ -751,3 +751,4 @@ def test_status_rank_is_the_same_for_a_step_and_a_batch():
     for row, w in zip(many, want, strict=True):
         assert np.array_equal(status_rank(row), w) and np.array_equal(status_rank(row.astype(str)), w)
     assert status_rank(np.array("alarm")).shape == () and int(status_rank(np.array("alarm"))) == 3
+    assert status_rank(np.array([b"alarm", b"ok"])).tolist() == [3, 0]  # bytes, as numpy reads them

@@ -162,7 +162,9 @@ def status_rank(status: np.ndarray) -> np.ndarray:
     anything else)."""
     status = np.asarray(status)
     if status.size <= 64:  # a step's few: a dictionary (numpy's string calls cost more)
-        ranks = [_RANK.get(str(v), 0) for v in status.ravel().tolist()]
+        ranks = [
+            _RANK.get(v.decode() if isinstance(v, bytes) else str(v), 0) for v in status.ravel().tolist()
+        ]
         return np.array(ranks, dtype=int).reshape(status.shape)
     status = status.astype(str)
     rank = np.zeros(status.shape, dtype=int)

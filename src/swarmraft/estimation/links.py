@@ -52,9 +52,17 @@ from swarmraft.estimation.trust_region import linear_multilateration
 K_LOW = 3.0  # once a link reads long beyond k, the links beyond this many sigmas are dropped
 TAMPER_SHARE = 0.5  # a drone disagreeing with more than this share of its links (one grossly) tampers
 _LOOSE = 1e8  # m^2: the variance of the pseudo-report that only fixes the fitted shape's gauge
-#: sigmas below ``k`` that `_quiet` needs before it calls a trial quiet: its own fit (not the
-#: bits of `screen`'s, within the solver's tolerance of them) decides only where it is clear
-QUIET_MARGIN = 0.25
+#: sigmas below ``k`` that `_quiet` needs before it calls a trial quiet: its own fit is not
+#: the bits of `screen`'s (its classical MDS start is summed in another order), and the two
+#: stop within the solver's tolerance of one minimum: up to 0.1 sigma apart in 1.4 million
+#: random 3-D swarms (a review's fuzzing, 2026-12-05)
+QUIET_MARGIN = 0.5
+#: `_quiet` only where the swarm's shape has one minimum: at least QUIET_DRONES drones whose
+#: classical MDS spreads the third axis at least QUIET_SHAPE of the first (in variance). On a
+#: near-flat or near-collinear swarm the two fits can stop in different minima (a review found
+#: 3.4 sigma apart at n = 4 and 6): there the numpy screening decides
+QUIET_DRONES = 7
+QUIET_SHAPE = 0.05
 
 
 @dataclass(frozen=True)
@@ -321,14 +329,15 @@ def _most_enlarged(
 
 @njit(cache=True)
 def _quiet(ranges, sigma, k, out):  # pragma: no cover - compiled
-    """Per trial, in place on out (T,): True where `screen` certainly finds nothing: every
-    pair of drones ranged at least one way, no link's two ways disagreeing beyond ``k``
-    sqrt(2) sigma, and the shape fitted to every range (classical MDS of the mean of both
-    ways, then Levenberg-Marquardt, as step 2 of the module docstring) reading no range or
-    link long beyond ``k`` - `QUIET_MARGIN` sigmas. Its own fit, not the bits of `screen`'s:
-    the margin covers the difference, and a trial it does not call quiet is screened in full.
-    One compiled pass: a 17-drone step's screening took 0.5 ms of numpy calls, and almost
-    every step finds nothing."""
+    """Per trial, in place on out (T,): True where `screen` finds nothing: at least
+    `QUIET_DRONES` drones, every pair ranged at least one way, no link's two ways disagreeing
+    beyond ``k`` sqrt(2) sigma, a shape with one minimum (its classical MDS's third variance
+    at least `QUIET_SHAPE` of its first), and the shape fitted to every range (that MDS of the
+    mean of both ways, then Levenberg-Marquardt, as step 2 of the module docstring) reading no
+    range or link long beyond ``k`` - `QUIET_MARGIN` sigmas. Its own fit, not the bits of
+    `screen`'s: the margin covers the difference where the shape has one minimum, and a trial
+    it does not call quiet is screened in full. One compiled pass: a 17-drone step's
+    screening took 0.5 ms of numpy calls, and almost every step finds nothing."""
     T, n, _ = ranges.shape
     two = k * np.sqrt(2.0) * sigma
     limit = k - QUIET_MARGIN
@@ -337,7 +346,7 @@ def _quiet(ranges, sigma, k, out):  # pragma: no cover - compiled
     for t in range(T):
         out[t] = False
         r = ranges[t]
-        whole = n >= 2
+        whole = n >= QUIET_DRONES
         for i in range(n):
             for j in range(n):
                 w[0, i, j] = 1.0 if i != j and not np.isnan(r[i, j]) else 0.0
@@ -369,6 +378,8 @@ def _quiet(ranges, sigma, k, out):  # pragma: no cover - compiled
             for j in range(n):
                 B[i, j] = -0.5 * (sq[i, j] - row[i] - row[j] + total)
         vals, vecs = np.linalg.eigh(B)
+        if not vals[n - 3] >= QUIET_SHAPE * vals[n - 1]:  # near-flat or near-collinear
+            continue
         x = np.zeros((1, n, 3))
         for a in range(min(3, n)):
             c = n - 1 - a
@@ -381,7 +392,7 @@ def _quiet(ranges, sigma, k, out):  # pragma: no cover - compiled
         G = np.eye(3) / _LOOSE
         gw = np.ones((1, n))
         levenberg_marquardt_kernel(
-            x, rep, ranges[t : t + 1], gw, w, G, 1.0 / sigma**2, 30, 1e-5, x, 0.0, cost, conv, True
+            x, rep, ranges[t : t + 1], gw, w, G, 1.0 / sigma**2, 30, 1e-5, x, 0.0, cost, conv, False
         )
         quiet = True
         for i in range(n):

@@ -176,8 +176,8 @@ def hypotheses_kernel(x, reported, ranges, trusted, keep, G, w_r, J, b, gnss, u,
     expressions it replaced (see there: J's diagonal blocks summed over j in order, each
     hypothesis' own block its GNSS plus its ranges summed over k in order)."""
     T, n, _ = x.shape
-    uu = np.empty((n, 3, 3))
-    own = np.empty((3, 3))
+    uu = np.empty((n, n, 3, 3))  # hypothesis j's range terms w u u' to each k (k = j: none)
+    own = np.empty((n, 3, 3))  # hypothesis j's own block
     for t in range(T):
         for j in range(n):
             gnss[t, j] = 1.0 if trusted[t, j] else 0.0
@@ -188,37 +188,31 @@ def hypotheses_kernel(x, reported, ranges, trusted, keep, G, w_r, J, b, gnss, u,
                     u[t, j, k, a] = (x[t, j, a] - x[t, k, a]) / s
                 m = j != k and not np.isnan(ranges[t, j, k]) and trusted[t, j] and keep[t, j] and keep[t, k]
                 w[t, j, k] = w_r if m else 0.0
-        J[t] = 0.0
-        b[t] = 0.0
         for j in range(n):
-            # hypothesis j's range terms uu[k] = w u u' (k = j: none) and its own block
             for k in range(n):
                 for a in range(3):
                     for c in range(3):
-                        uu[k, a, c] = w[t, j, k] * u[t, j, k, a] * u[t, j, k, c]
+                        # einsum adds each product to a zeroed output: a zero is +0.0
+                        uu[j, k, a, c] = 0.0 + w[t, j, k] * u[t, j, k, a] * u[t, j, k, c]
             for a in range(3):
                 for c in range(3):
-                    acc = uu[0, a, c]
+                    acc = uu[j, 0, a, c]
                     for k in range(1, n):
-                        acc += uu[k, a, c]
-                    own[a, c] = (G[a, c] if trusted[t, j] else 0.0) + acc
-            # J: off-diagonal blocks -(uu[p, q] + uu[q, p]) (the (q, p) half added when j = q)
-            for k in range(n):
-                if k == j:
-                    continue
+                        acc += uu[j, k, a, c]
+                    own[j, a, c] = (G[a, c] if trusted[t, j] else 0.0) + acc
+        for p in range(n):
+            for q in range(n):
                 for a in range(3):
                     for c in range(3):
-                        J[t, 3 * j + a, 3 * k + c] -= uu[k, a, c]
-                        J[t, 3 * k + a, 3 * j + c] -= uu[k, a, c]
-            # diagonal blocks: block p sums over j of (own if j = p else uu[p]), j in order
-            for p in range(n):
-                for a in range(3):
-                    for c in range(3):
-                        v = own[a, c] if p == j else uu[p, a, c]
-                        if j == 0:
+                        if p != q:  # -(uu[p, q] + uu[q, p]), its sign of zero as numpy's
+                            J[t, 3 * p + a, 3 * q + c] = -(uu[p, q, a, c] + uu[q, p, a, c])
+                        else:  # block p sums over j of (own if j = p else uu[j, p]), j in order
+                            v = own[p, a, c] if p == 0 else uu[0, p, a, c]
+                            for j in range(1, n):
+                                v += own[p, a, c] if j == p else uu[j, p, a, c]
                             J[t, 3 * p + a, 3 * p + c] = v
-                        else:
-                            J[t, 3 * p + a, 3 * p + c] += v
+        b[t] = 0.0
+        for j in range(n):
             # b_j: GNSS and range gradients on drone j, minus the range terms on each k
             for a in range(3):
                 e = 0.0
@@ -238,4 +232,4 @@ def hypotheses_kernel(x, reported, ranges, trusted, keep, G, w_r, J, b, gnss, u,
                     r = 0.0
                     if w[t, j, k] > 0:
                         r = pair_distance(x[t], j, k) - _finite(ranges[t, j, k])
-                    b[t, j, 3 * k + a] -= (w_r * r) * u[t, j, k, a]
+                    b[t, j, 3 * k + a] -= 0.0 + (w_r * r) * u[t, j, k, a]

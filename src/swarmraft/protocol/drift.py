@@ -57,8 +57,12 @@ class DriftModel:
 
     def variance(self) -> np.ndarray:
         """(M, 3): per-axis variance of an honest drone's mean innovation over its last m
-        windows, m = 1..M (row m - 1). Remembered per model (read only)."""
-        return _variance(self)
+        windows, m = 1..M (row m - 1). Remembered per model (read only; a model with a list
+        for a tuple cannot be a key, and is computed each time)."""
+        try:
+            return _variance(self)
+        except TypeError:
+            return self._variance()
 
     def _variance(self) -> np.ndarray:
         m = np.arange(1, self.windows + 1, dtype=float)[:, None]

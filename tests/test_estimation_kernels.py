@@ -583,3 +583,21 @@ def test_residual_statistics_kernel_is_the_numpy_expression(seed: int) -> None:
                 residual_statistics(*args), residual_statistics_reference(*args), strict=True
             ):
                 same(np.asarray(got, float), np.asarray(want, float))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_too_few_without_one_is_the_numpy_expression(seed: int) -> None:
+    """`integrity.too_few_without_one` (compiled): a trusted drone with fewer than 4 trusted
+    drones ranging it, an untrusted one that one anchor fewer would leave below 4 (3 with a
+    prior), as the numpy expression it replaced decides."""
+    from swarmraft.estimation.integrity import too_few_without_one
+    from swarmraft.estimation.noise import prior_held
+
+    for b in batches(seed):
+        ranges, trusted, prior, ps = b["ranges"], b["trusted"], b["prior"], b["prior_sigma"]
+        n = trusted.shape[1]
+        anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
+        cnt = anchors.sum(axis=2)
+        need = np.where(prior_held(prior, ps, trusted.shape) & ~trusted, 3, 4)
+        want = np.where(trusted, cnt < 4, (cnt - 1 < need) & (cnt > 0))
+        np.testing.assert_array_equal(too_few_without_one(ranges, trusted, prior, ps), want)

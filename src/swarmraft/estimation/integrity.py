@@ -49,6 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from pydantic import Field
 from scipy.special import ndtri
 
@@ -261,11 +262,28 @@ def too_few_without_one(
     3 ranges leave a circle of positions its fault can slide along), or an untrusted one that
     would keep fewer than 4 anchors (3 with a prior) if one of them were left out. Detecting a
     fault among the trusted needs that redundancy; without it no protection level exists."""
-    n = trusted.shape[1]
-    anchors = ~np.isnan(np.swapaxes(ranges, 1, 2)) & trusted[:, None, :] & ~np.eye(n, dtype=bool)
-    cnt = anchors.sum(axis=2)
-    need = np.where(prior_held(prior, prior_sigma, trusted.shape) & ~trusted, 3, 4)
-    return np.where(trusted, cnt < 4, (cnt - 1 < need) & (cnt > 0))
+    out = np.empty(trusted.shape, dtype=bool)
+    held = prior_held(prior, prior_sigma, trusted.shape)
+    _too_few_kernel(np.ascontiguousarray(ranges, float), np.ascontiguousarray(trusted, np.bool_), held, out)
+    return out
+
+
+@njit(cache=True)
+def _too_few_kernel(ranges, trusted, held, out):  # pragma: no cover - compiled
+    """`too_few_without_one` in place on out (T, n): each drone's anchors are the trusted
+    drones k != i whose range to it (d_ki) was measured."""
+    T, n = trusted.shape
+    for t in range(T):
+        for i in range(n):
+            cnt = 0
+            for k in range(n):
+                if k != i and trusted[t, k] and not np.isnan(ranges[t, k, i]):
+                    cnt += 1
+            if trusted[t, i]:
+                out[t, i] = cnt < 4
+            else:
+                need = 3 if held[t, i] else 4
+                out[t, i] = cnt - 1 < need and cnt > 0
 
 
 def subset_separations(

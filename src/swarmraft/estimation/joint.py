@@ -10,6 +10,8 @@ uses it with robust weights.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numba import njit
 from scipy.special import chdtri
@@ -867,7 +869,15 @@ def _statistics_kernel(rg, rr, ranges, trusted, per, gnss_q, total, dof):  # pra
 
 def chi2_quantile(q: float, dof: np.ndarray | int) -> np.ndarray:
     """Chi-square quantile (scipy.special.chdtri: the ufunc behind chi2.ppf, without its
-    per-call argument checking, which dominated the detectors' step time)."""
+    per-call argument checking, which dominated the detectors' step time). A scalar dof's
+    quantile is remembered (a step asks for the same few, eight times)."""
+    if isinstance(dof, int | np.integer):
+        return _chi2_scalar(float(q), int(dof))
+    return chdtri(dof, 1 - q)
+
+
+@lru_cache(maxsize=256)
+def _chi2_scalar(q: float, dof: int) -> np.float64:
     return chdtri(dof, 1 - q)
 
 

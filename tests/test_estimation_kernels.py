@@ -601,3 +601,28 @@ def test_too_few_without_one_is_the_numpy_expression(seed: int) -> None:
         need = np.where(prior_held(prior, ps, trusted.shape) & ~trusted, 3, 4)
         want = np.where(trusted, cnt < 4, (cnt - 1 < need) & (cnt > 0))
         np.testing.assert_array_equal(too_few_without_one(ranges, trusted, prior, ps), want)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_gnc_flags_kernel_is_the_numpy_expression(seed: int) -> None:
+    """`gnc._flags_kernel`: GNC's flags (a whitened GNSS residual squared above flag_chi2, or
+    most own ranges down-weighted) as `joint_detector`'s numpy expressions gave them."""
+    from swarmraft.estimation.gnc import _flags_kernel
+    from swarmraft.estimation.noise import gnss_whitener
+
+    rng = np.random.default_rng(seed)
+    Gh = gnss_whitener(np.diag([1.5**2, 1.5**2, 3.0**2]))
+    for b in batches(seed):
+        x, rep, ranges = b["x"], b["reported"], b["ranges"]
+        T, n, _ = x.shape
+        range_w = rng.uniform(0, 1, (T, n, n))
+        with np.errstate(all="ignore"):
+            rg, _ = residuals(x, rep, ranges, Gh, 0.1)
+        own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
+        bad_want = ((range_w < 0.5) & own).sum(axis=2) > 0.5 * own.sum(axis=2)
+        q = np.einsum("tni,tni->tn", rg, rg)
+        for limit in (1.0, float(np.median(q)), 16.27):
+            faulty, bad = np.empty((T, n), dtype=bool), np.empty((T, n), dtype=bool)
+            _flags_kernel(x, rep, ranges, Gh, range_w, limit, faulty, bad)
+            np.testing.assert_array_equal(bad, bad_want)
+            np.testing.assert_array_equal(faulty, (q > limit) | bad_want)

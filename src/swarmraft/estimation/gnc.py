@@ -264,6 +264,32 @@ def _placement_q(x, reported, ranges, faulty, ask, G, cov, w_r, limit, q, sure):
         sure[t] = ok
 
 
+@njit(cache=True)
+def _flags_kernel(x, reported, ranges, G_half, range_w, flag_chi2, faulty, bad_ranges):  # pragma: no cover
+    """GNC's flags in place on faulty and bad_ranges (T, n): a drone whose whitened GNSS
+    residual squared (`residuals_kernel`'s whitening, einsum's three squares) is above
+    ``flag_chi2``, or more than half of whose own measured ranges GNC down-weighted below 0.5
+    (bad_ranges); the numpy expressions `joint_detector` had, bit for bit."""
+    T, n, _ = x.shape
+    for t in range(T):
+        for i in range(n):
+            e0 = x[t, i, 0] - reported[t, i, 0]
+            e1 = x[t, i, 1] - reported[t, i, 1]
+            e2 = x[t, i, 2] - reported[t, i, 2]
+            r0 = G_half[0, 0] * e0 + G_half[0, 1] * e1 + G_half[0, 2] * e2
+            r1 = G_half[1, 0] * e0 + G_half[1, 1] * e1 + G_half[1, 2] * e2
+            r2 = G_half[2, 0] * e0 + G_half[2, 1] * e1 + G_half[2, 2] * e2
+            measured = 0
+            low = 0
+            for j in range(n):
+                if j != i and not np.isnan(ranges[t, i, j]):
+                    measured += 1
+                    if range_w[t, i, j] < 0.5:
+                        low += 1
+            bad_ranges[t, i] = low > 0.5 * measured
+            faulty[t, i] = ((r0 * r0 + r2 * r2) + r1 * r1) > flag_chi2 or bad_ranges[t, i]
+
+
 class JointParams(IntegrityParams):
     c_gnss: float = Field(4.0, gt=0, description="GNC inlier bound, whitened GNSS residual")
     c_range: float = Field(4.0, gt=0, description="GNC inlier bound, whitened range residual")
@@ -363,10 +389,9 @@ def joint_detector(batch: SnapshotBatch, p: JointParams) -> VerdictBatch:
         inner=p.inner,
     )
     G_half = noise.whitener
-    rg, _ = residuals(x, reported, ranges, G_half, noise.range_sigma)
     own = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
-    bad_ranges = ((range_w < 0.5) & own).sum(axis=2) > 0.5 * own.sum(axis=2)
-    faulty = (np.einsum("tni,tni->tn", rg, rg) > p.flag_chi2) | bad_ranges
+    faulty, bad_ranges = np.empty(own.shape[:2], dtype=bool), np.empty(own.shape[:2], dtype=bool)
+    _flags_kernel(x, reported, ranges, G_half, range_w, float(p.flag_chi2), faulty, bad_ranges)
     # Re-inclusion: estimate with the flagged drones distrusted; a flagged drone whose report
     # agrees with where the others' ranges put it was flagged wrongly (GNC can settle on a
     # wrong partition when many reports are spoofed). Agrees: its report minus that estimate,

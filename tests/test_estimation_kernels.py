@@ -626,3 +626,32 @@ def test_gnc_flags_kernel_is_the_numpy_expression(seed: int) -> None:
             _flags_kernel(x, rep, ranges, Gh, range_w, limit, faulty, bad)
             np.testing.assert_array_equal(bad, bad_want)
             np.testing.assert_array_equal(faulty, (q > limit) | bad_want)
+
+
+def test_swap_sets_are_the_numpy_construction() -> None:
+    """`rivals._swap_sets`: the rival check's swaps (per trial of ``rows``, per flagged drone,
+    the trusted drone of each rank up to ``swaps``, or all where ``full``, left out and the
+    flagged one trusted) in the order numpy's indexing built them."""
+    from swarmraft.estimation.rivals import _swap_count, _swap_sets
+
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        T, n = int(rng.integers(1, 6)), int(rng.integers(2, 12))
+        trusted = rng.random((T, n)) < 0.6
+        rows = np.flatnonzero(rng.random(T) < 0.8).astype(np.int64)
+        full = rng.random(T) < 0.4
+        swaps = int(rng.integers(1, 4))
+        worst = np.argsort(np.where(trusted, -rng.random((T, n)), np.inf), axis=1)
+        k = np.where(full[rows], trusted[rows].sum(axis=1), np.minimum(swaps, trusted[rows].sum(axis=1)))
+        t_idx, e_idx = np.nonzero(~trusted[rows])
+        owner = np.repeat(rows[t_idx], k[t_idx])
+        e_idx = np.repeat(e_idx, k[t_idx])
+        rank = np.arange(owner.size) - np.repeat(np.cumsum(k[t_idx]) - k[t_idx], k[t_idx])
+        want = trusted[owner].copy()
+        want[np.arange(owner.size), worst[owner, rank]] = False
+        want[np.arange(owner.size), e_idx] = True
+        B = _swap_count(trusted, rows, full, swaps)
+        got_owner, got = np.empty(B, dtype=np.int64), np.empty((B, n), dtype=bool)
+        _swap_sets(trusted, rows, full, swaps, worst.astype(np.int64), got_owner, got)
+        np.testing.assert_array_equal(got_owner, owner)
+        np.testing.assert_array_equal(got, want)

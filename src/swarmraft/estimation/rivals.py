@@ -45,6 +45,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarmraft.estimation.joint import (
     cannot_pass,
@@ -117,21 +118,15 @@ def rival_sets(
     only if it fits better than the chosen estimate by ``drop_margin`` (below)."""
     if gnss_q is None:
         _, gnss_q, _, _ = residual_statistics(x, reported, ranges, trusted, noise)
-    rows = np.asarray(rows, dtype=int)
+    rows = np.asarray(rows, dtype=np.int64)
     T, n = trusted.shape
     full = np.zeros(T, dtype=bool) if full is None else np.asarray(full, bool)
     # per trial, up to ``swaps`` of its own trusted drones (not the batch's fewest), or all
-    k = np.where(full[rows], trusted[rows].sum(axis=1), np.minimum(swaps, trusted[rows].sum(axis=1)))
     worst = np.argsort(np.where(trusted, -gnss_q, np.inf), axis=1)  # (T, n), trusted first
-    t_idx, e_idx = np.nonzero(~trusted[rows])
-    owner = np.repeat(rows[t_idx], k[t_idx])
-    e_idx = np.repeat(e_idx, k[t_idx])
-    rank = np.arange(owner.size) - np.repeat(np.cumsum(k[t_idx]) - k[t_idx], k[t_idx])
-    out = worst[owner, rank]
-    B = owner.size
-    sets = trusted[owner].copy()
-    sets[np.arange(B), out] = False
-    sets[np.arange(B), e_idx] = True
+    tr = np.ascontiguousarray(trusted, np.bool_)
+    B = _swap_count(tr, rows, full, swaps)
+    owner, sets = np.empty(B, dtype=np.int64), np.empty((B, n), dtype=bool)
+    _swap_sets(tr, rows, full, swaps, np.ascontiguousarray(worst, np.int64), owner, sets)
     # the full search's second start for each swap, and its drops, both from the chosen
     # estimate's mirror image (below)
     again = np.flatnonzero(full[owner])
@@ -194,6 +189,48 @@ def rival_sets(
         margin = np.where(dropped, -drop_margin, chi2_quantile(1 - p_fa, 1))
         passed[strict] &= total[strict] <= chosen + margin
     return Rivals(owner, sets, passed, xs, total)
+
+
+@njit(cache=True)
+def _swap_count(trusted, rows, full, swaps):  # pragma: no cover - compiled
+    """How many swaps `_swap_sets` makes: per flagged drone of each trial ``rows``, its
+    trusted drones' count where ``full``, else at most ``swaps``."""
+    B = 0
+    for t in rows:
+        m = 0
+        for i in range(trusted.shape[1]):
+            if trusted[t, i]:
+                m += 1
+        k = m if full[t] else min(swaps, m)
+        for i in range(trusted.shape[1]):
+            if not trusted[t, i]:
+                B += k
+    return B
+
+
+@njit(cache=True)
+def _swap_sets(trusted, rows, full, swaps, worst, owner, sets):  # pragma: no cover - compiled
+    """`rival_sets`' swaps in place on owner (B,) and sets (B, n), in numpy's order: trial by
+    trial (``rows``), flagged drone e by e, the trusted drone of rank r (``worst`` (T, n):
+    trusted drones by how badly their reports fit, first) left out and e trusted."""
+    b = 0
+    n = trusted.shape[1]
+    for t in rows:
+        m = 0
+        for i in range(n):
+            if trusted[t, i]:
+                m += 1
+        k = m if full[t] else min(swaps, m)
+        for e in range(n):
+            if trusted[t, e]:
+                continue
+            for r in range(k):
+                owner[b] = t
+                for i in range(n):
+                    sets[b, i] = trusted[t, i]
+                sets[b, worst[t, r]] = False
+                sets[b, e] = True
+                b += 1
 
 
 def larger_rivals(

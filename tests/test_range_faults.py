@@ -255,8 +255,9 @@ def test_the_quiet_trials_shortcut_gives_the_full_screening(rng):
 def test_the_quiet_shortcut_leaves_flat_and_thin_swarms_to_the_numpy_screening():
     """On a near-flat or near-collinear swarm the shape's fit has more than one minimum, and
     `links._quiet`'s own fit could stop in another than `_screen`'s (a review's case, n = 4:
-    `_screen` drops a link, the compiled fit read nothing long). Such swarms, and swarms of
-    fewer than QUIET_DRONES, are never called quiet; `screen` equals `_screen` on 400 random
+    `_screen` drops a link, the compiled fit read nothing long; a second review's, a
+    near-collinear swarm of 7). Such swarms, and swarms of fewer than QUIET_DRONES, are never
+    called quiet; `screen` equals `_screen` on 400 random
     swarms of 4 to 12 drones, flat, thin or round, most with an NLOS link of 3 to 12 sigma."""
     from swarmraft.estimation.links import _quiet, _screen
 
@@ -272,6 +273,78 @@ def test_the_quiet_shortcut_leaves_flat_and_thin_swarms_to_the_numpy_screening()
         ]
     )
     assert screen(case, 0.1).changed and _screen(case, 0.1, 5.0, 20, 2.0).changed
+    # a near-collinear swarm of 7 (a second review's case): only the shape check refuses it
+    thin = np.array(
+        [
+            [
+                [
+                    nan,
+                    30.678147509203974,
+                    0.3005702429262779,
+                    35.18530244346377,
+                    21.81081719805132,
+                    9.946480610801355,
+                    43.31270628087024,
+                ],
+                [
+                    30.67672368160479,
+                    nan,
+                    30.3790851611004,
+                    4.505195693815888,
+                    8.87967129472734,
+                    20.733758224729648,
+                    12.632942872213558,
+                ],
+                [
+                    0.2982463160214951,
+                    30.379427281869397,
+                    nan,
+                    34.883378392936415,
+                    21.503721208851974,
+                    nan,
+                    43.012563238167374,
+                ],
+                [
+                    35.184568583491526,
+                    4.505186898453178,
+                    34.88640575098481,
+                    nan,
+                    13.385253073650775,
+                    25.236855903455925,
+                    8.130678935021866,
+                ],
+                [
+                    nan,
+                    8.878813890284603,
+                    21.503712754131623,
+                    13.384140798680935,
+                    nan,
+                    11.853614122605215,
+                    21.509102695622538,
+                ],
+                [
+                    9.946479395993405,
+                    20.734655602905363,
+                    9.647516787690881,
+                    25.23874842013954,
+                    11.858346965774096,
+                    nan,
+                    33.36690388876355,
+                ],
+                [
+                    43.310687599655694,
+                    12.634123075329825,
+                    43.01469067704726,
+                    8.12758189120384,
+                    21.509132428356605,
+                    33.366221481877496,
+                    nan,
+                ],
+            ]
+        ]
+    )
+    sigma_thin = 0.0011749741866833344
+    assert screen(thin, sigma_thin).changed and _screen(thin, sigma_thin, 5.0, 20, 2.0).changed
     rng = np.random.default_rng(11)
     quiet_seen = 0
     for _ in range(40):

@@ -809,7 +809,7 @@ def _half(n):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _pairwise_2(a, lo, n):  # pragma: no cover - compiled
-    """`pairwise_sum` of a run whose halves are blocks (n <= 242)."""
+    """`pairwise_sum` of a run whose halves are blocks (n <= 256)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
     h = _half(n)
@@ -818,7 +818,7 @@ def _pairwise_2(a, lo, n):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _pairwise_3(a, lo, n):  # pragma: no cover - compiled
-    """`pairwise_sum` of a run whose quarters are blocks (n <= 484)."""
+    """`pairwise_sum` of a run whose quarters are blocks (n <= 512)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
     h = _half(n)
@@ -837,7 +837,7 @@ def pairwise_sum(a, lo, n):  # pragma: no cover - compiled
     return _pairwise_3(a, lo, h) + _pairwise_3(a, lo + h, n - h)
 
 
-#: the longest run `pairwise_sum` sums as numpy does (halves of at most 484, quarters 242)
+#: the longest run `pairwise_sum` sums as numpy does (every length up to it tested against np.sum)
 PAIRWISE_MAX = 960
 
 
@@ -869,7 +869,7 @@ def _statistics_kernel(rg, rr, ranges, trusted, per, gnss_q, total, dof):  # pra
 
 def chi2_quantile(q: float, dof: np.ndarray | int) -> np.ndarray:
     """Chi-square quantile (scipy.special.chdtri: the ufunc behind chi2.ppf, without its
-    per-call argument checking, which dominated the detectors' step time). A scalar dof's
+    per-call argument checking, which dominated the detectors' step time). An integer dof's
     quantile is remembered (a step asks for the same few, eight times)."""
     if isinstance(dof, int | np.integer):
         return _chi2_scalar(float(q), int(dof))

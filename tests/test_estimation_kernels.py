@@ -329,7 +329,8 @@ def test_placement_kernel_decides_as_numpy(seed: int) -> None:
     wherever it says it is sure; it is not sure of a statistic at the limit itself (there the
     bits decide), and `_placement_statistic`'s decisions q <= limit are numpy's throughout."""
     from swarmraft.estimation.gnc import _placement_q, _placement_statistic
-    from swarmraft.estimation.noise import NoiseModel, gnss_information
+    from swarmraft.estimation.integrity import _hypothesis_information
+    from swarmraft.estimation.noise import NoiseModel
 
     cov = np.diag([1.5**2, 1.5**2, 3.0**2])
     sure_count = 0
@@ -338,9 +339,11 @@ def test_placement_kernel_decides_as_numpy(seed: int) -> None:
         faulty = ~b["trusted"]
         T, n, _ = x.shape
         ref = placement_reference(x, rep, rng_, faulty, cov, b["range_sigma"])
-        args = (x, rep, rng_, faulty, faulty, gnss_information(cov), cov, 1.0 / b["range_sigma"] ** 2)
+        noise = NoiseModel(cov, b["range_sigma"], None)
+        with np.errstate(all="ignore"):
+            info = _hypothesis_information(x, rep, rng_, ~faulty, noise, np.ones((T, n), dtype=bool))[0]
         q, sure = np.zeros((T, n)), np.zeros(T, dtype=bool)
-        _placement_q(*args, 1e300, q, sure)
+        _placement_q(info.copy(), rep, x, faulty, cov, 1e300, q, sure)
         sure_count += sure.sum()
         for t in np.flatnonzero(sure):
             np.testing.assert_allclose(q[t][faulty[t]], ref[t][faulty[t]], rtol=1e-6)
@@ -348,15 +351,8 @@ def test_placement_kernel_decides_as_numpy(seed: int) -> None:
                 continue
             at = float(ref[t][faulty[t]][0])  # a limit a statistic sits on
             q2, s2 = np.zeros((1, n)), np.zeros(1, dtype=bool)
-            _placement_q(
-                *(
-                    a[t : t + 1] if isinstance(a, np.ndarray) and a.ndim >= 2 and a.shape[0] == T else a
-                    for a in args
-                ),
-                at,
-                q2,
-                s2,
-            )
+            one = slice(t, t + 1)
+            _placement_q(info[one].copy(), rep[one], x[one], faulty[one], cov, at, q2, s2)
             assert not s2[0]
         noise = NoiseModel(cov, b["range_sigma"], None)
         rows = np.flatnonzero(faulty.any(axis=1))

@@ -36,6 +36,7 @@ from swarmraft.estimation.noise import NoiseModel, gnss_information, gnss_whiten
 from swarmraft.estimation.registry import register
 from swarmraft.estimation.set_search import search_sets
 from swarmraft.estimation.snapshot import SnapshotBatch, VerdictBatch
+from swarmraft.estimation.woodbury import hypotheses_kernel
 
 FOLD_ROUNDS = 6  # re-inclusion rounds on a sparse range graph (`joint_detector`)
 #: `_placement_q` up to this many drones (its inverse is dense: beyond, numpy's LAPACK is faster)
@@ -186,52 +187,24 @@ def _norm1(M):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _placement_q(x, reported, ranges, faulty, ask, G, cov, w_r, limit, q, sure):  # pragma: no cover
+def _placement_q(info, reported, x, ask, cov, limit, q, sure):  # pragma: no cover - compiled
     """The re-inclusion statistic of `joint_detector` for the drones ``ask`` (T, n): each one's
-    report minus x whitened by cov + C (C its 3x3 block of the inverse of the information of
-    the trusted drones' GNSS (information G) and of the ranges they measured, weight w_r, at
-    x), in place on q (T, n). ``sure`` (T,): False where numpy must decide instead (`_safe_inv`,
-    with its condition test): the information is not clearly invertible (not positive definite
-    to Cholesky, or its 1-norm condition number not below half of MAX_CONDITION / 3n), or a
-    statistic lies within PLACEMENT_MARGIN (relative; or the condition number times 1e-13, if
-    more) of ``limit``, where the bits of the two computations could decide apart. Otherwise
-    the decision q <= limit is numpy's."""
+    report minus x whitened by cov + C (C its 3x3 block of the inverse of ``info`` (T, 3n, 3n),
+    the information of the trusted drones' GNSS and of the ranges they measured, at x: spoilt
+    here), in place on q (T, n). ``sure`` (T,): False where numpy must decide instead
+    (`_safe_inv`, with its condition test): the information is not clearly invertible (not
+    positive definite to Cholesky, or its 1-norm condition number not below half of
+    MAX_CONDITION / 3n), or a statistic lies within PLACEMENT_MARGIN (relative; or the
+    condition number times 1e-13, if more) of ``limit``, where the bits of the two
+    computations could decide apart. Otherwise the decision q <= limit is numpy's."""
     T, n, _ = x.shape
     N = 3 * n
-    J = np.empty((N, N))
     P = np.empty((N, N))
     C = np.empty((3, 3))
-    u = np.empty(3)
     r = np.empty(3)
     for t in range(T):
         sure[t] = False
-        J[:, :] = 0.0
-        for i in range(n):
-            if not faulty[t, i]:
-                for a in range(3):
-                    for b in range(3):
-                        J[3 * i + a, 3 * i + b] += G[a, b]
-        for i in range(n):
-            if faulty[t, i]:
-                continue
-            for j in range(n):
-                if j == i or np.isnan(ranges[t, i, j]):
-                    continue
-                dist = 0.0
-                for a in range(3):
-                    u[a] = x[t, i, a] - x[t, j, a]
-                    dist += u[a] * u[a]
-                dist = np.sqrt(dist)
-                if dist > 0:
-                    for a in range(3):
-                        u[a] /= dist
-                for a in range(3):
-                    for b in range(3):
-                        v = w_r * u[a] * u[b]
-                        J[3 * i + a, 3 * i + b] += v
-                        J[3 * j + a, 3 * j + b] += v
-                        J[3 * i + a, 3 * j + b] -= v
-                        J[3 * j + a, 3 * i + b] -= v
+        J = info[t]
         norm_j = _norm1(J)
         if not np.isfinite(norm_j) or _cholesky(J, N) <= 0.0:
             continue
@@ -337,19 +310,15 @@ def _placement_statistic(
     q = np.zeros((rows.size, n))
     sure = np.zeros(rows.size, dtype=bool)
     if n <= PLACEMENT_KERNEL_N:
-        _placement_q(
-            np.ascontiguousarray(x[rows]),
-            np.ascontiguousarray(reported[rows]),
-            np.ascontiguousarray(ranges[rows]),
-            np.ascontiguousarray(faulty[rows]),
-            np.ascontiguousarray(ask[rows]),
-            gnss_information(noise.gnss_cov),
-            np.ascontiguousarray(noise.gnss_cov, float),
-            1.0 / noise.range_sigma**2,
-            float(limit),
-            q,
-            sure,
-        )
+        xr, rep, tr = np.ascontiguousarray(x[rows]), np.ascontiguousarray(reported[rows]), ~faulty[rows]
+        # the trusted set's information, as the protection levels build it (every drone kept)
+        J, b = np.empty((rows.size, 3 * n, 3 * n)), np.empty((rows.size, n, 3 * n))
+        gnss, u, w = np.empty((rows.size, n)), np.empty((rows.size, n, n, 3)), np.empty((rows.size, n, n))
+        keep = np.ones((rows.size, n), dtype=bool)
+        G, w_r = gnss_information(noise.gnss_cov), 1.0 / noise.range_sigma**2
+        hypotheses_kernel(xr, rep, np.ascontiguousarray(ranges[rows]), tr, keep, G, w_r, J, b, gnss, u, w)
+        cov = np.ascontiguousarray(noise.gnss_cov, float)
+        _placement_q(J, rep, xr, np.ascontiguousarray(ask[rows]), cov, float(limit), q, sure)
     rest = rows[~sure]
     if rest.size:
         tr = ~faulty[rest]

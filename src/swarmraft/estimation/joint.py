@@ -90,6 +90,16 @@ def pair_distance(xt, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def norm_apart(p, q):  # pragma: no cover - compiled
+    """|p - q| of two 3-vectors summed as np.linalg.norm sums three squares, in order:
+    (d0^2 + d1^2) + d2^2 (einsum's order is `pair_distance`'s)."""
+    d0 = p[0] - q[0]
+    d1 = p[1] - q[1]
+    d2 = p[2] - q[2]
+    return np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+
+
+@njit(cache=True)
 def _separation(xt, i, j):  # pragma: no cover - compiled
     """Distance between drones i and j at positions xt, and the vector x_i - x_j."""
     d0 = xt[i, 0] - xt[j, 0]
@@ -963,10 +973,7 @@ def _pair_beyond(reported, ranges, owner, sets, limit, out):  # pragma: no cover
             for j in range(n):
                 if j == i or not sets[b, j] or np.isnan(r[i, j]):
                     continue
-                d0 = z[i, 0] - z[j, 0]
-                d1 = z[i, 1] - z[j, 1]
-                d2 = z[i, 2] - z[j, 2]
-                if abs(np.sqrt((d0 * d0 + d1 * d1) + d2 * d2) - r[i, j]) > lim:
+                if abs(norm_apart(z[i], z[j]) - r[i, j]) > lim:
                     out[b] = True
                     break
 

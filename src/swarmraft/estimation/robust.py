@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from swarmraft.estimation.envelope import SPARSE_SHARE
-from swarmraft.estimation.joint import initial_positions, pair_distance, weighted_gauss_newton
+from swarmraft.estimation.joint import initial_positions, norm_apart, pair_distance, weighted_gauss_newton
 from swarmraft.estimation.links import linked_share
 from swarmraft.estimation.noise import NoiseModel
 
@@ -210,10 +210,7 @@ def _ambiguous_kernel(X, x, cost, c, conv, q, own, trusted, far, window, out):  
             if trusted[t, i]:
                 continue
             for s in range(S):
-                d0 = X[s, t, i, 0] - x[t, i, 0]
-                d1 = X[s, t, i, 1] - x[t, i, 1]
-                d2 = X[s, t, i, 2] - x[t, i, 2]
-                if not np.sqrt((d0 * d0 + d1 * d1) + d2 * d2) > far:
+                if not norm_apart(X[s, t, i], x[t, i]) > far:
                     continue
                 near = conv[s, t] and cost[s, t] <= c[t] + window
                 if near or q[s, t, i] <= own[t, i] + window:

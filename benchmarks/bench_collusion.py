@@ -8,10 +8,12 @@ draws (same seeds and chunks: `experiments.trials.draw`), with every attacker mo
 Cells (n = 2f+4 for f = 3, 4, 5 about 1 and 2 pivots, with f_max = (n-1)//2 and f_max = f;
 3 pivots with f_max = f; n = 2f+1 about 1, 2 and 3 pivots) and per cell and detector:
 ``exact`` (flags = attackers), ``wrong`` (trials in which some honest drone is flagged),
-``fp`` (honest drones flagged), ``unid`` (status unidentifiable), ``unid|exact`` and
-``ms`` (mean verification time per trial in a batch of ``--chunk``). ``--step`` instead
-times single-snapshot verification (a leader step) at one cell: best and median of
-``--repeat`` snapshots, each detector on the same snapshots. ``--param KEY=VALUE``
+``fp`` (honest drones flagged), ``unid`` (status unidentifiable), ``unid|exact``,
+``misl`` (trials whose `ok` verdict places a drone beyond max(20 m, its level), horizontally
+or vertically: misleading information) and ``ms`` (mean verification time per trial in a
+batch of ``--chunk``). ``--step`` instead times single-snapshot verification (a leader
+step) at one cell: best and median of ``--repeat`` snapshots, each detector on the same
+snapshots. ``--param KEY=VALUE``
 (repeatable) is given to every detector run, e.g. ``--detectors joint --param
 registration_rivals=true``.
 """
@@ -26,7 +28,7 @@ import numpy as np
 from cli_args import param_values
 from swarmraft.estimation import verify_batch
 from swarmraft.experiments import build_config
-from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
+from swarmraft.experiments.trials import chunk_seed, draw, integrity_metrics, snapshot_batch
 
 
 def cells() -> list[tuple[str, int, int, str]]:
@@ -52,7 +54,7 @@ def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk, extra
         attack={"name": attack, "min_move": min_move},
     )
     params = {**(extra or {}), **({"f_max": f} if rule == "f" else {})}
-    stats = {d: {"exact": [], "wrong": [], "fp": [], "unid": [], "t": 0.0} for d in detectors}
+    stats = {d: {"exact": [], "wrong": [], "fp": [], "unid": [], "misl": [], "t": 0.0} for d in detectors}
     for c, lo in enumerate(range(0, trials, chunk)):
         T = min(chunk, trials - lo)
         d = draw(cfg, np.random.default_rng(chunk_seed(seed, n, f, c)), T, n, f)
@@ -66,6 +68,7 @@ def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk, extra
             s["wrong"].append((v.faulty & ~d.attackers).any(axis=1))
             s["fp"].append(v.faulty[~d.attackers])
             s["unid"].append(v.status == "unidentifiable")
+            s["misl"].append(integrity_metrics(d, v)["ok_over_20m_hv"] > 0)
     rows = []
     for det in detectors:
         s = {k: np.concatenate(v) if isinstance(v, list) else v for k, v in stats[det].items()}
@@ -81,6 +84,7 @@ def run_cell(attack, n, f, rule, detectors, trials, seed, min_move, chunk, extra
                 s["fp"].mean(),
                 s["unid"].mean(),
                 (s["unid"] | s["exact"]).mean(),
+                s["misl"].mean(),
                 1e3 * s["t"] / trials,
             )
         )
@@ -148,16 +152,16 @@ def main() -> None:
         step_times(dets, n, f, a.repeat, a.seed, extra)
         return
     keep = set(a.only.split(",")) if a.only else None
-    print("attack       n  f  f_max    detector exact  wrong  fp     unid   unid|exact  ms/trial")
+    print("attack       n  f  f_max    detector exact  wrong  fp     unid   unid|exact  misl   ms/trial")
     for attack, n, f, rule in cells():
         if (keep and attack not in keep) or (a.f and str(f) not in a.f.split(",")):
             continue
         for row in run_cell(attack, n, f, rule, dets, a.trials, a.seed, a.min_move, a.chunk, extra):
-            at, n_, f_, r, det, ex, wr, fp, un, ue, ms = row
+            at, n_, f_, r, det, ex, wr, fp, un, ue, ml, ms = row
             fm = n_ - 1 >> 1 if r == "default" else f_
             print(
                 f"{at:12s} {n_:2d} {f_:2d} {fm:2d} ({r:7s}) {det:8s} {ex:.3f}  {wr:.3f}  {fp:.4f} "
-                f"{un:.3f}  {ue:.3f}       {ms:.1f}",
+                f"{un:.3f}  {ue:.3f}       {ml:.3f}  {ms:.1f}",
                 flush=True,
             )
 

@@ -146,6 +146,15 @@ def test_compare_without_detectors(cwd):
     fails_cleanly(["compare", "--attacks", " , ", "--out", "o"], "--attacks", cwd)
 
 
+def test_a_compare_param_every_detector_must_take(cwd):
+    """--param goes to every detector compared: one that lacks it is refused by name before
+    any sweep runs, wherever it is in the list."""
+    for dets in ("paper,joint", "joint,paper"):
+        args = ["compare", "--detectors", dets, "--param", "registration_rivals=false", "--out", "o"]
+        line = fails_cleanly(args, "--param", cwd)
+        assert "paper.registration_rivals: unknown parameter" in line
+
+
 def test_workers_0_fails_before_anything_starts(cwd):
     line = fails_cleanly(["sweep", "--n", "5", "--workers", "0", "--out", "o"], "--workers", cwd)
     assert "0 is not in the range x>=1" in line

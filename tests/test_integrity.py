@@ -175,11 +175,15 @@ def test_a_verdict_whose_levels_exceed_the_alert_limit_withholds_those_drones():
     its levels inf; the verdict is not ok."""
     truth, rep, rng_, _ = _realistic_trials(9, 4, (10646,))
     batch = SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1)
-    off = verify_batch(batch, "joint", alert_limit_h=None, alert_limit_v=None)
+    alone = {"registration_rivals": False}  # as found: before the registrations' rivals
+    off = verify_batch(batch, "joint", alert_limit_h=None, alert_limit_v=None, **alone)
     err = np.linalg.norm(off.positions - truth, axis=2)
     assert off.status[0] == "ok" and (err[0] > 100).sum() == 2  # the verdict as it was found
     assert not off.diagnostics["beyond_alert_limit"].any()
-    v = verify_batch(batch, "joint")
+    default = verify_batch(batch, "joint")
+    far = np.linalg.norm(default.positions - truth, axis=2) > 20
+    assert not ((default.status == "ok")[:, None] & far).any()
+    v = verify_batch(batch, "joint", **alone)
     beyond = v.diagnostics["beyond_alert_limit"][0]
     assert v.status[0] != "ok" and beyond[err[0] > 100].all()
     assert (v.drone_status[0, beyond] == "degenerate").all()
@@ -340,9 +344,12 @@ def test_a_rival_with_one_more_drone_out_must_fit_better():
     """(7, 1), realistic: with 6 trusted drones, leaving one out often lets it (and the flagged
     drone) sit at a mirror image that still passes the tests; without the likelihood-ratio
     margin 12 % of these verdicts became unidentifiable (0.5 % before the drops), though
-    none was more than 20 m off (with the margin of 3: 2.1 % of 10,000)."""
+    none was more than 20 m off (with the margin of 3: 2.1 % of 10,000). The swaps alone: the
+    registrations' rivals (on by default) make 16 % of these unidentifiable on their own
+    (a rotation about near-collinear honest drones can carry the spoofed report into place,
+    tests/test_shape.py)."""
     truth, rep, rng_, _ = _realistic_trials(7, 1, range(200))
-    v = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1), "joint")
+    v = verify_batch(SnapshotBatch(rep, rng_, (1.5, 3.0), 0.1), "joint", registration_rivals=False)
     assert (v.status == "unidentifiable").mean() <= 0.03, collections.Counter(v.status)
 
 
@@ -442,7 +449,10 @@ def test_joint_detector_is_efficient_at_n_9_and_13(n, f):
     C = swarm_crb(d.truth, ~d.attackers, ~np.isnan(d.ranges), gnss_covariance(1.5, 3.0), 0.1)
     sq = np.sum((v.positions - d.truth) ** 2, axis=2)
     fixed = np.isfinite(sq)
-    assert fixed.mean() > 0.98
+    # withheld: the untrusted drones of unidentifiable verdicts (a second registration of the
+    # shape explains the data in 10 % of the trials at (9, 2) with f_max = 4), and they only
+    assert fixed.mean() > 0.9
+    assert (fixed | (v.status == "unidentifiable")[:, None]).mean() > 0.98
     tr = np.trace(C, axis1=2, axis2=3)
     eff = np.sqrt(sq[fixed & d.attackers].mean() / tr[fixed & d.attackers].mean())
     assert eff <= 1.3, eff  # target 1.2: (9, 2) measures 1.27 here (README)

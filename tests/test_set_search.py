@@ -1,6 +1,8 @@
 """The exhaustive set search of alarm verdicts, and of degenerate ones that accuse drones
 (`estimation.set_search`, `joint`'s ``set_search``): smallest exclusion first, one passing
-set is the answer, several are unidentifiable, none leaves the alarm."""
+set is the answer, several are unidentifiable, none leaves the alarm. The registrations'
+rivals (on by default) are off here: they settle some of these verdicts before the search
+runs, and the search is what is tested (tests/test_shape.py tests them)."""
 
 import math
 
@@ -11,6 +13,8 @@ from swarmraft.estimation import verify_batch
 from swarmraft.estimation.set_search import sets_leaving_out
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import chunk_seed, draw, snapshot_batch
+
+SEARCH_ONLY = {"registration_rivals": False}  # the search without the registrations' rivals
 
 
 def test_sets_leaving_out_are_every_set_once():
@@ -33,8 +37,8 @@ def alarms():
 
 def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(alarms):
     batch, attackers = alarms
-    assert (verify_batch(batch, "joint", set_search=0).status == "alarm").all()
-    v = verify_batch(batch, "joint", set_search=300)
+    assert (verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0).status == "alarm").all()
+    v = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=300)
     # trial 1: only the true honest set passes among the sets leaving out at most 4
     assert v.status[0] == "ok" and (v.faulty[0] == attackers[0]).all()
     # the diagnostics are the new verdict's, not the alarm's
@@ -48,7 +52,7 @@ def test_an_alarm_with_one_passing_set_takes_it_and_several_are_unidentifiable(a
 def test_a_search_beyond_its_cap_leaves_the_alarm(alarms):
     batch, _ = alarms
     # the whole search is 1 + 9 + 36 + 84 + 126 = 256 sets
-    assert (verify_batch(batch, "joint", set_search=255).status == "alarm").all()
+    assert (verify_batch(batch, "joint", **SEARCH_ONLY, set_search=255).status == "alarm").all()
 
 
 def test_an_explanation_that_moves_drones_beyond_the_levels_is_a_rival():
@@ -57,7 +61,7 @@ def test_an_explanation_that_moves_drones_beyond_the_levels_is_a_rival():
     elsewhere: unidentifiable, not ok (ok before the rival rule)."""
     cfg = build_config("realistic", n=(9,), f=(4,), trials=10000)
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, 9)), 1000, 9, 4)
-    v = verify_batch(snapshot_batch(cfg, d).subset(np.array([147])), "joint", set_search=300)
+    v = verify_batch(snapshot_batch(cfg, d).subset(np.array([147])), "joint", **SEARCH_ONLY, set_search=300)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[147]).any()
 
@@ -72,20 +76,20 @@ def test_a_degenerate_verdict_that_accuses_more_than_the_smallest_explanation_is
     batch = snapshot_batch(cfg, d).subset(np.array([972]))
     # the verdict as found, before the alert limits (which now also withhold the spoofer:
     # its levels are above them)
-    before = verify_batch(batch, "joint", set_search=0, alert_limit_h=None, alert_limit_v=None)
+    before = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0, alert_limit_h=None, alert_limit_v=None)
     assert before.status[0] == "degenerate" and before.faulty[0].sum() == 3
     assert np.linalg.norm(before.positions[0] - d.truth[972], axis=1).max() > 90
-    v = verify_batch(batch, "joint", set_search=100)
+    v = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=100)
     assert v.status[0] == "unidentifiable"
     assert not v.faulty[0].any()
     err = np.linalg.norm(v.positions[0] - d.truth[972], axis=1)
     assert np.isnan(err[d.attackers[972]]).all() and np.nanmax(err) < 10
     # the default searches a swarm of 7 (64 sets): the same answer
-    default = verify_batch(batch, "joint")
+    default = verify_batch(batch, "joint", **SEARCH_ONLY)
     assert default.status[0] == "unidentifiable" and not default.faulty[0].any()
     np.testing.assert_array_equal(default.positions, v.positions)
     # the drones it leaves unplaced are those the geometry does not fix, not the alert limits'
-    off = verify_batch(batch, "joint", set_search=100, alert_limit_h=None, alert_limit_v=None)
+    off = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=100, alert_limit_h=None, alert_limit_v=None)
     assert not v.diagnostics["beyond_alert_limit"].any()
     np.testing.assert_array_equal(v.positions, off.positions)
 
@@ -101,8 +105,8 @@ def test_an_explanation_that_places_a_drone_beyond_the_alert_limits_is_no_rival_
     placed, `given_set(keep_unverified=True)`): without that, trials 26, 231 and 297 were
     `unidentifiable`."""
     one = _trial(7, 3, trial)
-    off = verify_batch(one, "joint", alert_limit_h=None, alert_limit_v=None)
-    v = verify_batch(one, "joint")
+    off = verify_batch(one, "joint", **SEARCH_ONLY, alert_limit_h=None, alert_limit_v=None)
+    v = verify_batch(one, "joint", **SEARCH_ONLY)
     assert off.status[0] == v.status[0] == "ok"
     np.testing.assert_array_equal(v.positions, off.positions)
     np.testing.assert_array_equal(v.faulty, off.faulty)
@@ -116,13 +120,13 @@ def test_the_default_search_covers_swarms_of_up_to_13_drones_within_its_budget(a
     (trial 5 of (17, 8), chunk 0)."""
     from swarmraft.estimation.gnc import JointParams
 
-    p = JointParams()
+    p = JointParams(**SEARCH_ONLY)
     assert p.set_search == sum(math.comb(13, k) for k in range(7)) == 4096
     assert sum(math.comb(14, k) for k in range(7)) > 4096
     assert p.search_budget == sum(math.comb(9, k) for k in range(5)) == 256
     batch, _ = alarms
-    default = verify_batch(batch, "joint")
-    whole = verify_batch(batch, "joint", set_search=300, search_budget=None)
+    default = verify_batch(batch, "joint", **SEARCH_ONLY)
+    whole = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=300, search_budget=None)
     assert list(default.status) == list(whole.status) == ["ok", "unidentifiable"]
     np.testing.assert_array_equal(default.faulty, whole.faulty)
     np.testing.assert_array_equal(default.positions, whole.positions)
@@ -135,7 +139,7 @@ def test_the_default_budget_leaves_a_verdict_whose_search_needs_more_sets():
     estimated to know it, so with the default the alarm stands as the detector left it."""
     one = _trial(13, 6, 110)
     _default_leaves_the_alarm(one)
-    assert verify_batch(one, "joint", search_budget=None).status[0] == "unidentifiable"
+    assert verify_batch(one, "joint", **SEARCH_ONLY, search_budget=None).status[0] == "unidentifiable"
 
 
 def _trial(n: int, f: int, t: int):  # noqa: ANN202 (a SnapshotBatch)
@@ -147,7 +151,10 @@ def _trial(n: int, f: int, t: int):  # noqa: ANN202 (a SnapshotBatch)
 
 def _default_leaves_the_alarm(one) -> None:  # noqa: ANN001
     """`joint` with its defaults gives ``one`` the alarm it gives without the search."""
-    off, default = verify_batch(one, "joint", set_search=0), verify_batch(one, "joint")
+    off, default = (
+        verify_batch(one, "joint", **SEARCH_ONLY, set_search=0),
+        verify_batch(one, "joint", **SEARCH_ONLY),
+    )
     assert off.status[0] == default.status[0] == "alarm"
     np.testing.assert_array_equal(default.faulty, off.faulty)
     np.testing.assert_array_equal(default.positions, off.positions)
@@ -163,13 +170,13 @@ def test_an_explanation_that_cannot_place_a_drone_the_answer_places_is_a_rival()
     cfg = build_config("realistic", n=(7,), f=(3,), trials=2000, geometry="flat")
     d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 7, 3, 0)), 1000, 7, 3)
     batch = snapshot_batch(cfg, d).subset(np.array([253]))
-    assert verify_batch(batch, "joint", set_search=0).status[0] == "degenerate"
-    v = verify_batch(batch, "joint", set_search=100)
+    assert verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0).status[0] == "degenerate"
+    v = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=100)
     assert v.status[0] == "unidentifiable"
     assert not (v.faulty[0] & ~d.attackers[253]).any()
     # the search decides on the statuses without the alert limits (the spoofer's explanation
     # has levels above them, a label that does not change what the data explain): the same
-    off = verify_batch(batch, "joint", set_search=100, alert_limit_h=None, alert_limit_v=None)
+    off = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=100, alert_limit_h=None, alert_limit_v=None)
     np.testing.assert_array_equal(v.faulty, off.faulty)
     np.testing.assert_array_equal(v.status, off.status)
 
@@ -184,8 +191,10 @@ def test_an_alarm_no_set_explains_takes_the_likeliest_set_that_passes_its_residu
         c, t = divmod(trial, 1000)
         d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, 9, 4, c)), 1000, 9, 4)
         batch = snapshot_batch(cfg, d).subset(np.array([t]))
-        assert not (verify_batch(batch, "joint", set_search=0).faulty[0] == d.attackers[t]).all()
-        v = verify_batch(batch, "joint", set_search=300)
+        assert not (
+            verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0).faulty[0] == d.attackers[t]
+        ).all()
+        v = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=300)
         assert v.status[0] == "alarm" and v.diagnostics["alarm_cause"][0] == "separation test"
         assert (v.faulty[0] == d.attackers[t]).all()
         err = np.linalg.norm(v.positions[0] - d.truth[t], axis=1)
@@ -223,10 +232,12 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
         cfg = build_config("realistic", n=(n,), f=(f,), trials=1000)
         d = draw(cfg, np.random.default_rng(chunk_seed(cfg.seed, n, f, 0)), 1000, n, f)
         batch = snapshot_batch(cfg, d)
-        p = JointParams()
+        p = JointParams(**SEARCH_ONLY)
         noise = NoiseModel.of(batch, p, "test")
         sets = np.concatenate([sets_leaving_out(n, k) for k in range(f + 1)])
-        for t in np.flatnonzero(verify_batch(batch, "joint", set_search=0).status == "alarm")[:4]:
+        for t in np.flatnonzero(verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0).status == "alarm")[
+            :4
+        ]:
             one = batch.subset(np.array([t]))
             owner = np.zeros(len(sets), int)
             sigma = noise.range_sigma
@@ -258,13 +269,13 @@ def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monke
     )
     for t, accused in ((0, 6), (2, 5)):
         batch = snapshot_batch(cfg, d).subset(np.array([t]))
-        off = verify_batch(batch, "joint", set_search=0)
+        off = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=0)
         assert off.status[0] == "degenerate" and off.faulty[0].sum() == accused
         estimated.clear()
-        on = verify_batch(batch, "joint", set_search=5000)
+        on = verify_batch(batch, "joint", **SEARCH_ONLY, set_search=5000)
         assert on.status[0] == "degenerate" and (on.faulty[0] == off.faulty[0]).all()
         np.testing.assert_array_equal(on.positions, off.positions)
-        p = JointParams()
+        p = JointParams(**SEARCH_ONLY)
         noise = NoiseModel.of(batch, p, "test")
         owner = np.zeros(len(sets), int)
         sigma = noise.range_sigma
@@ -289,11 +300,11 @@ def test_a_search_that_needs_more_estimates_than_its_budget_leaves_the_verdict(a
     monkeypatch.setattr(
         ss, "given_set", lambda b, p, s, **kw: estimated.append(len(s)) or real(b, p, s, **kw)
     )
-    full = verify_batch(one, "joint", set_search=300, search_budget=None)
+    full = verify_batch(one, "joint", **SEARCH_ONLY, set_search=300, search_budget=None)
     need = sum(estimated)
     assert full.status[0] == "ok" and need > 1
-    short = verify_batch(one, "joint", set_search=300, search_budget=need - 1)
+    short = verify_batch(one, "joint", **SEARCH_ONLY, set_search=300, search_budget=need - 1)
     assert short.status[0] == "alarm"
-    enough = verify_batch(one, "joint", set_search=300, search_budget=need)
+    enough = verify_batch(one, "joint", **SEARCH_ONLY, set_search=300, search_budget=need)
     assert enough.status[0] == "ok" and (enough.faulty[0] == attackers[0]).all()
     np.testing.assert_array_equal(enough.positions, full.positions)

@@ -1,11 +1,20 @@
 """The `shape` detector: rigid registrations of the range-fixed shape to the reports, and
 rigid collusion under realistic noise."""
 
+import math
+from itertools import combinations
+
 import numpy as np
 import pytest
 
 from swarmraft.estimation import Snapshot, SnapshotBatch, verify, verify_batch
-from swarmraft.estimation.registrations import procrustes_fit, shape_ranges, triples
+from swarmraft.estimation.registrations import (
+    covering_triples,
+    procrustes_fit,
+    shape_ranges,
+    triples,
+    turan_triples,
+)
 from swarmraft.experiments import build_config
 from swarmraft.experiments.trials import draw, snapshot_batch
 from swarmraft.world.geometry import true_distances
@@ -205,9 +214,9 @@ def test_registration_rivals_make_joint_unidentifiable_where_colluders_register_
     (7, 3) with every drone `degenerate`: 4 anchors); with the registrations' candidates as
     rivals it says unidentifiable and accuses no honest drone."""
     d, b = collusion(n, f, k, 40, seed=20 + k)
-    plain = verify_batch(b, "joint")
+    plain = verify_batch(b, "joint", registration_rivals=False)
     assert (plain.faulty & ~d.attackers).any(axis=1).mean() >= 0.2  # what the rivals are for
-    v = verify_batch(b, "joint", registration_rivals=True)
+    v = verify_batch(b, "joint")  # on by default
     unid = v.status == "unidentifiable"
     exact = (v.faulty == d.attackers).all(axis=1)
     assert (unid | exact).mean() >= 0.95
@@ -219,9 +228,9 @@ def test_registration_rivals_refuse_joints_guess_about_three_pivots():
     pivots' plane makes the colluders' registration a second explanation; `joint` alone
     picks one and is wrong in a sixth of the trials."""
     d, b = collusion(12, 4, 3, 60, seed=3)
-    plain = verify_batch(b, "joint", f_max=4)
+    plain = verify_batch(b, "joint", f_max=4, registration_rivals=False)
     assert (plain.faulty & ~d.attackers).any(axis=1).sum() >= 4
-    v = verify_batch(b, "joint", f_max=4, registration_rivals=True)
+    v = verify_batch(b, "joint", f_max=4)
     assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1
     exact = (v.faulty == d.attackers).all(axis=1)
     assert (exact | (v.status == "unidentifiable")).mean() >= 0.95
@@ -236,14 +245,14 @@ def test_registration_rivals_on_plain_jumps_change_verdicts_only_to_unidentifiab
     cfg = build_config("realistic", n=(13,), f=(3,), trials=60)
     d = draw(cfg, np.random.default_rng(8), 60, 13, 3)
     b = snapshot_batch(cfg, d)
-    plain = verify_batch(b, "joint")
-    v = verify_batch(b, "joint", registration_rivals=True)
+    plain = verify_batch(b, "joint", registration_rivals=False)
+    v = verify_batch(b, "joint")
     changed = (v.status != plain.status) | (v.faulty != plain.faulty).any(axis=1)
     assert (v.status[changed] == "unidentifiable").all()
     assert changed.sum() <= 4  # 6 without the check that the verdict does not fit the candidate's data
     assert not (v.faulty & ~d.attackers)[changed].any()
-    told = verify_batch(b, "joint", f_max=3)
-    w = verify_batch(b, "joint", f_max=3, registration_rivals=True)
+    told = verify_batch(b, "joint", f_max=3, registration_rivals=False)
+    w = verify_batch(b, "joint", f_max=3)
     assert (w.status == told.status).all() and (w.faulty == told.faulty).all()
 
 
@@ -254,13 +263,13 @@ def test_registration_rivals_turn_an_alarm_two_registrations_explain_into_uniden
     search, on by default at n = 7, answers the same there: both are checked, the rivals with
     the search off.)"""
     d, b = collusion(7, 3, 1, 80, seed=21)
-    plain = verify_batch(b, "joint", set_search=0)
+    plain = verify_batch(b, "joint", set_search=0, registration_rivals=False)
     rows = np.flatnonzero((plain.status == "alarm") & (plain.faulty & ~d.attackers).any(axis=1))
     assert rows.size  # the case exists in these trials
     v = verify_batch(b.subset(rows), "joint", registration_rivals=True, set_search=0)
     assert (v.status == "unidentifiable").all()
     assert not (v.faulty & ~d.attackers[rows]).any()
-    searched = verify_batch(b.subset(rows), "joint")
+    searched = verify_batch(b.subset(rows), "joint", registration_rivals=False)
     assert (searched.status == "unidentifiable").all()
     assert not (searched.faulty & ~d.attackers[rows]).any()
 
@@ -273,6 +282,64 @@ def test_registration_rivals_need_more_than_a_refit_of_fewer_reports():
     cfg = build_config("realistic", n=(7,), f=(1,), trials=100)
     d = draw(cfg, np.random.default_rng(12), 100, 7, 1)
     b = snapshot_batch(cfg, d)
-    v = verify_batch(b, "joint", registration_rivals=True)
+    v = verify_batch(b, "joint")
     assert (v.status == "ok").mean() >= 0.7
     assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1
+
+
+def misleading(v, d):
+    """Trials (T,) with a drone of an `ok` status farther from the truth than max(20 m, its
+    level), horizontally or vertically: misleading information."""
+    e = v.positions - d.truth
+    far = (np.hypot(e[..., 0], e[..., 1]) > np.maximum(20.0, v.hpl)) | (
+        np.abs(e[..., 2]) > np.maximum(20.0, v.vpl)
+    )
+    return ((v.drone_status == "ok") & far).any(axis=1)
+
+
+@pytest.mark.parametrize(("n", "f", "k"), [(9, 4, 1), (9, 4, 2), (11, 5, 3)])
+def test_joint_by_default_is_never_ok_and_far_off_under_colluders_at_2f_plus_1(n, f, k):
+    """The colluders and their pivots are a majority at n = 2f+1: `joint` without the
+    registrations' rivals trusts them and calls drones `ok` 30-200 m off, beyond their
+    levels, in a third of the trials or more; by default (the rivals on) never."""
+    d, b = collusion(n, f, k, 40, seed=30 + k)
+    assert misleading(verify_batch(b, "joint", registration_rivals=False), d).sum() >= 8  # the failure exists
+    v = verify_batch(b, "joint")
+    assert not misleading(v, d).any()
+    assert (v.faulty & ~d.attackers).any(axis=1).sum() <= 1
+
+
+@pytest.mark.parametrize(("n", "m"), [(35, 18), (65, 33), (65, 49), (129, 65), (256, 128)])
+def test_covering_triples_seed_every_large_set(n, m):
+    """Above the cap (every triple would be more than 6,000) the rival check's seeds are a
+    covering: every set of m drones holds one of them from each of the 3 splits (so at
+    least one, and nearly always 3), far fewer than the cap's sample."""
+    t = covering_triples(n, m, 6000)
+    assert len(t) < 1000
+    rng = np.random.default_rng(n + m)
+    member = np.zeros(n, dtype=bool)
+    held = []
+    for _ in range(300):
+        member[:] = False
+        member[rng.choice(n, m, replace=False)] = True
+        held.append(member[t].all(axis=1).sum())
+    assert min(held) >= 1
+    assert np.mean(np.array(held) >= 3) >= 0.9
+
+
+@pytest.mark.parametrize(("n", "m"), [(11, 6), (12, 5), (13, 7), (14, 8), (16, 9), (14, 11)])
+def test_turan_triples_hold_a_seed_in_every_set_of_m(n, m):
+    """Every one of the C(n, m) sets, checked: each holds a seed (with g groups of a split
+    and m > 2 g, some group has 3 of its drones)."""
+    t = turan_triples(n, m, 3)
+    assert len(t) < math.comb(n, 3)
+    sets = np.zeros((math.comb(n, m), n), dtype=bool)
+    for row, c in enumerate(combinations(range(n), m)):
+        sets[row, list(c)] = True
+    held = sets[:, t].all(axis=2).sum(axis=1)
+    assert held.min() >= 1
+
+
+def test_covering_triples_are_every_triple_below_the_cap():
+    for n, m in [(7, 4), (13, 7), (17, 9), (34, 18)]:
+        assert np.array_equal(covering_triples(n, m, 6000), triples(n, 6000))

@@ -19,7 +19,11 @@ likeliest set that fails only its separation test), and on 2026-12-05 for the al
 (70 m each way: 43 arrays of `flat` and `line` cells, drones whose levels are above them
 withheld; 3 statuses `ok` -> `degenerate`, no flag or trusted set changed), and again for the
 untrusted drones whose faults could not be detected, withheld with the limits set (positions of
-5 arrays now nan; no flag, status or level changed)."""
+5 arrays now nan; no flag, status or level changed), and again when `joint` took the
+registrations' rivals by default (`flat` (5, 2) trial 0: `degenerate` accusing drones 1 and 3
+-> `unidentifiable` accusing none; `line` (9, 4) trial 0: `ok` -> `degenerate`, the same
+flags; 14 `joint` arrays of 4 cells, in `cube` (9, 4) positions and levels by at most
+7e-7 m)."""
 
 import sys
 from pathlib import Path

@@ -34,6 +34,14 @@ from swarmraft.cli.tables import (
     summary_table,
 )
 
+PARAMS = click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="detector parameter, repeatable (e.g. --param tau=0.3; the value is read as JSON, null: none).",
+)
+
 
 @main.command()
 @click.option(
@@ -55,13 +63,7 @@ from swarmraft.cli.tables import (
 @click.option("--trials", type=click.IntRange(min=1), help="trials per cell [default 10000]")
 @click.option("--seed", type=click.IntRange(min=0), help="master seed [default 2025]")
 @click.option("--detector", help="registered detector name [default paper]")
-@click.option(
-    "--param",
-    "params",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="detector parameter, repeatable (e.g. --param tau=0.3; the value is read as JSON, null: none).",
-)
+@PARAMS
 @click.option(
     "--attack",
     help=f"attack [default jump]: {', '.join(ATTACK_NAMES)}, or one registered (docs/models.md)",
@@ -437,6 +439,7 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
 @click.option("--n", "n_text", default="9,13,17", show_default=True, help="swarm sizes")
 @click.option("--f", "f_text", help="attacker counts (default: every f <= (n-1)/2)")
 @click.option("--diagonal", is_flag=True, help="only the cells n = 2f+1")
+@PARAMS
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True, help="trials per cell")
 @click.option("--seed", type=click.IntRange(min=0), help="master seed [default 2025]")
 @WORKERS
@@ -461,6 +464,7 @@ def compare_cmd(
     n_text,
     f_text,
     diagonal,
+    params,
     trials,
     seed,
     workers,
@@ -473,18 +477,27 @@ def compare_cmd(
     Writes compare.csv (one row per attack, detector and (n, f)), each sweep's folder under
     OUT/<attack>/<detector>, and one figure per metric in OUT/figures: error of attacked and
     honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
-    identification rates.
+    identification rates. A --param is given to every detector compared (each must take it).
     """
     from swarmraft.estimation import detector_names
-    from swarmraft.experiments.compare import check_out, listed, run_compare
+    from swarmraft.experiments.compare import check_detectors, check_out, listed, run_compare
+    from swarmraft.experiments.config import ConfigError
 
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     from swarmraft.experiments.config import attack_names
 
-    config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, {})
+    given = {"detector": dets[0], "detector_params": key_values(params)} if params else {}
+    config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, given)
     if config_file is not None and not typed("attacks"):
         attacks = config.attack.name  # the file's, or the preset's (jump, compare's default too)
     atks = name_list(attacks, "--attacks", attack_names(), "attack")
+    try:
+        check_detectors(config, dets)
+    except ConfigError as exc:
+        where, _, what = str(exc).partition(":")
+        if where == "detector_params" and params:  # a --param one of the detectors lacks
+            raise click.BadParameter(what.strip(), param_hint="--param") from None
+        raise
     out = out or Path("results") / f"compare-{config.preset}"
     check_out(out)
     before = listed(out)

@@ -21,7 +21,7 @@ from pydantic import Field
 from swarmraft.estimation.bounds import CHI2_3DOF_999, MAX_CONDITION, swarm_crb
 from swarmraft.estimation.clique import CliqueParams, clique_detector
 from swarmraft.estimation.envelope import SPARSE_SHARE
-from swarmraft.estimation.integrity import IntegrityParams, finish, resolve_f_max, status_rank
+from swarmraft.estimation.integrity import DETECTION, IntegrityParams, finish, resolve_f_max, status_rank
 from swarmraft.estimation.joint import (
     _cholesky,
     _cholesky_solve_columns,
@@ -287,6 +287,17 @@ class JointParams(IntegrityParams):
         "the default 256 is every set at n = 9 (at most 89 ms a searched step at (9, 4), 219 ms at "
         "(13, 6) on an AMD EPYC); None: no limit (--param search_budget=null; in TOML, which has no "
         "null, a number at least set_search)",
+    )
+    registration_rivals: bool = Field(
+        True,
+        description="the rival check also tries the inlier sets of the rigid registrations of the "
+        "range-fixed shape to the reports (the shape detector's candidates): a verdict with such a "
+        "rival, leaving at most f_max drones out, passing its tests and placing some drone beyond "
+        "the verdict's levels, is unidentifiable (colluders moved rigidly about honest pivots); on "
+        "by default for joint: without it, under colluders at n = 2f+1, 4-91 % of joint's verdicts "
+        "were ok with a drone beyond max(20 m, its level) (with it 0-0.6 %, 5.4 % about 3 pivots "
+        "at n = 7; benchmarks/bench_collusion.py); false: off",
+        json_schema_extra=DETECTION,
     )
 
 

@@ -594,7 +594,7 @@ def finish(
     reg = None
     if p.registration_rivals:
         f_max = resolve_f_max(p, trusted.shape[1], "integrity")
-        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa)
+        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa, covering=True)
         explained = _explained_alarms(reg, final)
         if explained is not None:
             rows, sets, flags, decided = explained

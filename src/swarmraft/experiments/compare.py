@@ -7,8 +7,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
 from swarmraft.estimation import get_detector
+from swarmraft.estimation.registry import one_line
 from swarmraft.experiments.config import ConfigError, SweepConfig
 from swarmraft.experiments.metrics import CELL_COLUMNS, efficiency_interval, sem
 from swarmraft.experiments.sweep import CELL_TEXT_COLUMNS, SweepResult, read_run, run_sweep
@@ -77,6 +79,25 @@ def listed(out: Path) -> list[str]:
     return list(dict.fromkeys(f"{a}/{d}" for a, d in zip(t["attack"], t["detector"], strict=True)))
 
 
+def for_detector(config: SweepConfig, detector: str, attack: str | None = None) -> SweepConfig:
+    """``config`` for one detector (and attack) of a comparison, validated again: a
+    ConfigError naming the field where that detector does not take its parameters."""
+    update: dict = {"detector": detector}
+    if attack is not None:
+        update["attack"] = config.attack.model_copy(update={"name": attack})
+    try:
+        return SweepConfig(**config.model_copy(update=update).model_dump())
+    except ValidationError as exc:
+        raise ConfigError(one_line(exc, "", SweepConfig)) from None
+
+
+def check_detectors(config: SweepConfig, detectors: Sequence[str]) -> None:
+    """Before any work: every detector is registered and takes the config's parameters."""
+    for d in detectors:
+        get_detector(d)
+        for_detector(config, d)
+
+
 def run_compare(
     config: SweepConfig,
     detectors: Sequence[str],
@@ -90,18 +111,14 @@ def run_compare(
     """One sweep per (attack, detector) into ``out/<attack>/<detector>``; returns the merged
     cells table with the standard errors of SEM_COLUMNS (also written to
     ``out/compare.csv``) and the sweep results."""
-    for d in detectors:
-        get_detector(d)  # unknown names fail before any work
+    check_detectors(config, detectors)
     out = Path(out)
     check_out(out)
     results = []
     rows: list[dict] = []
     for attack in attacks:
         for det in detectors:
-            cfg = config.model_copy(
-                update={"detector": det, "attack": config.attack.model_copy(update={"name": attack})}
-            )
-            cfg = SweepConfig(**cfg.model_dump())  # re-validate
+            cfg = for_detector(config, det, attack)
             labelled = None
             if progress is not None:
 

@@ -15,6 +15,8 @@ the n - 1 reports it receives directly (the censorship fan-out: one signature ea
 come first. Median and best over the steps measured.
 
 Run: .venv/bin/python benchmarks/bench_audit.py [--steps 40] [--drones 9 17 33] [--detectors joint paper]
+     [--param KEY=VALUE ...]   (given to every detector, e.g. --detectors joint --param
+     registration_rivals=false: the mission's detector_params)
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from cli_args import param_values
 from swarmraft.protocol import Keyring, StepRecord, SwarmDrone
 from swarmraft.protocol.drone import Prior, compute_record
 from swarmraft.protocol.signing import _check
@@ -58,13 +61,13 @@ def parts(rec: StepRecord, keys: Keyring, w: ScenarioWorld) -> tuple[float, floa
     return (t1 - t0) * 1000, (t2 - t1) * 1000
 
 
-def run(n: int, detector: str, steps: int) -> dict[str, object]:
+def run(n: int, detector: str, steps: int, params: dict | None = None) -> dict[str, object]:
     sc = Scenario(
         name="bench",
         seed=1,
         drones=n,
         duration_s=(WARM + steps + 2) * 0.1,
-        protocol={"detector": detector},
+        protocol={"detector": detector, "detector_params": params or {}},
         spoof=[{"kind": "jump", "drones": [2, 5], "start_s": 1.0, "magnitude": 30.0}],
     )
     w = ScenarioWorld.build(sc)
@@ -118,7 +121,11 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--drones", type=int, nargs="+", default=[9, 17, 33])
     ap.add_argument("--detectors", nargs="+", default=["joint", "paper"])
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="a detector parameter")
     a = ap.parse_args()
+    params = {}
+    for det in a.detectors:
+        params = param_values(ap, a.param, det)
     print(
         f"audit CPU per step per voter, ms (median / best over {a.steps} steps); target {TARGET_MS} at n = 17"
     )
@@ -126,7 +133,7 @@ def main() -> None:
     print(head + f" {'re-run':>12} {'fan-out':>12} {'check+fan':>10}  target")
     for det in a.detectors:
         for n in a.drones:
-            r = run(n, det, a.steps)
+            r = run(n, det, a.steps, params)
             total = r["check"][0] + r["fanout"][0]
             cells = " ".join(
                 f"{r[c][0]:6.2f}/{r[c][1]:5.2f}" for c in ("check", "signatures", "rerun", "fanout")

@@ -115,13 +115,13 @@ def shape_ranges(ranges: np.ndarray, sigma: float, k: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _procrustes(y, z, w, hand, R, tr):  # pragma: no cover - compiled
-    """Weighted orthogonal Procrustes (Kabsch): R (3, 3) with det R = ``hand`` (+1 or -1) and
-    tr (3,) minimising sum_i w_i |z_i - R y_i - tr|^2 over points y, z (n, 3), in place."""
+def _cross(y, z, w, yc, zc):  # pragma: no cover - compiled
+    """The weighted centroids of points y, z (n, 3) (into yc, zc) and the SVD (U, Vt) of their
+    weighted cross-covariance: what `_procrustes` needs of them whatever the handedness."""
     n = y.shape[0]
     sw = 0.0
-    yc = np.zeros(3)
-    zc = np.zeros(3)
+    yc[:] = 0.0
+    zc[:] = 0.0
     for i in range(n):
         sw += w[i]
         for a in range(3):
@@ -137,7 +137,24 @@ def _procrustes(y, z, w, hand, R, tr):  # pragma: no cover - compiled
                 for b in range(3):
                     C[a, b] += w[i] * (z[i, a] - zc[a]) * (y[i, b] - yc[b])
     U, _, Vt = np.linalg.svd(C)
-    d = hand * np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+    return U, Vt
+
+
+@njit(cache=True)
+def _det3(A):  # pragma: no cover - compiled
+    return (
+        A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
+        - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+        + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])
+    )
+
+
+@njit(cache=True)
+def _rotation(U, Vt, yc, zc, hand, R, tr):  # pragma: no cover - compiled
+    """R with det R = ``hand`` and tr from `_cross`'s parts, in place. U and Vt are
+    orthogonal (determinant +-1), so the sign of their determinants by cofactors is the sign
+    LAPACK's LU would give."""
+    d = hand * np.sign(_det3(U) * _det3(Vt))
     for a in range(3):
         for b in range(3):
             R[a, b] = U[a, 0] * Vt[0, b] + U[a, 1] * Vt[1, b] + d * U[a, 2] * Vt[2, b]
@@ -145,6 +162,16 @@ def _procrustes(y, z, w, hand, R, tr):  # pragma: no cover - compiled
         tr[a] = zc[a]
         for b in range(3):
             tr[a] -= R[a, b] * yc[b]
+
+
+@njit(cache=True)
+def _procrustes(y, z, w, hand, R, tr):  # pragma: no cover - compiled
+    """Weighted orthogonal Procrustes (Kabsch): R (3, 3) with det R = ``hand`` (+1 or -1) and
+    tr (3,) minimising sum_i w_i |z_i - R y_i - tr|^2 over points y, z (n, 3), in place."""
+    yc = np.zeros(3)
+    zc = np.zeros(3)
+    U, Vt = _cross(y, z, w, yc, zc)
+    _rotation(U, Vt, yc, zc, hand, R, tr)
 
 
 def procrustes_fit(y: np.ndarray, z: np.ndarray, w: np.ndarray, hand: float) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +185,9 @@ def procrustes_fit(y: np.ndarray, z: np.ndarray, w: np.ndarray, hand: float) -> 
 
 
 @njit(cache=True)
-def _register(y, z, w, hand, Winv, threshold, placed, inl, R, tr):  # pragma: no cover - compiled
-    """One registration of shape y (n, 3) to reports z with weights w (n,) and det R =
-    ``hand`` (`_procrustes`); the placed drones within ``threshold`` of it (whitened by Winv)
-    into ``inl`` (n,); returns how many."""
-    _procrustes(y, z, w, hand, R, tr)
+def _inliers(y, z, Winv, threshold, placed, inl, R, tr):  # pragma: no cover - compiled
+    """The placed drones within ``threshold`` of the registration R, tr of shape y (n, 3) to
+    reports z (whitened by Winv) into ``inl`` (n,); returns how many."""
     cnt = 0
     e = np.zeros(3)
     for i in range(y.shape[0]):
@@ -197,6 +222,10 @@ def _registration_kernel(
     inl = np.zeros(n, dtype=np.bool_)
     R = np.zeros((3, 3))
     tr = np.zeros(3)
+    yc = np.zeros(3)
+    zc = np.zeros(3)
+    U = np.zeros((3, 3))
+    Vt = np.zeros((3, 3))
     for t in range(T):
         c = 0
         for m in range(tri.shape[0]):
@@ -205,6 +234,7 @@ def _registration_kernel(
                 continue
             if not (adj[t, i, j] and adj[t, i, k] and adj[t, j, k]):
                 continue
+            seeded = False  # the triple's own SVD, the same for both handednesses
             for hi in range(2):
                 hand = 1.0 - 2.0 * hi
                 covered = False
@@ -217,8 +247,17 @@ def _registration_kernel(
                 w[:] = 0.0
                 w[i] = w[j] = w[k] = 1.0
                 ok = False
-                for _ in range(refits + 1):
-                    if _register(shape[t], reported[t], w, hand, Winv, threshold, placed[t], inl, R, tr) < 3:
+                for it in range(refits + 1):
+                    if it == 0:
+                        if not seeded:
+                            U, Vt = _cross(shape[t], reported[t], w, yc, zc)
+                            seeded = True
+                        _rotation(U, Vt, yc, zc, hand, R, tr)
+                        got = _inliers(shape[t], reported[t], Winv, threshold, placed[t], inl, R, tr)
+                    else:
+                        _procrustes(shape[t], reported[t], w, hand, R, tr)
+                        got = _inliers(shape[t], reported[t], Winv, threshold, placed[t], inl, R, tr)
+                    if got < 3:
                         ok = False
                         break
                     ok = True

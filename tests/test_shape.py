@@ -11,6 +11,7 @@ from swarmraft.estimation import Snapshot, SnapshotBatch, verify, verify_batch
 from swarmraft.estimation.registrations import (
     covering_triples,
     procrustes_fit,
+    rival_seeds,
     shape_ranges,
     triples,
     turan_triples,
@@ -338,6 +339,22 @@ def test_turan_triples_hold_a_seed_in_every_set_of_m(n, m):
         sets[row, list(c)] = True
     held = sets[:, t].all(axis=2).sum(axis=1)
     assert held.min() >= 1
+
+
+def test_the_rival_seeds_mirror_inside_a_found_set_only_the_turan_triples():
+    """Below the cap every triple seeds; the ones also tried mirrored inside a set found with
+    the other handedness are exactly the Turan triples (all of them at n = 7, where there are
+    none), so every set of n - f_max drones keeps such a seed."""
+    for n, m in [(7, 4), (9, 5), (13, 7), (17, 9)]:
+        tri, inside = rival_seeds(n, m, 6000)
+        assert np.array_equal(tri, triples(n, 6000))
+        turan = turan_triples(n, m, 3)
+        if not len(turan):
+            assert inside.all()
+            continue
+        assert {tuple(t) for t in tri[inside].tolist()} == {tuple(t) for t in turan.tolist()}
+    tri, inside = rival_seeds(65, 33, 6000)
+    assert inside.all() and np.array_equal(tri, covering_triples(65, 33, 6000))
 
 
 def test_covering_triples_are_every_triple_below_the_cap():

@@ -466,7 +466,8 @@ def candidates(
     inlier sets of the rigid registrations leaving at most ``f_max`` drones out, largest
     first, each solved and tested at ``p_fa`` (module docstring; `shape` for the rule). A
     trial without a registration has one candidate, the drones the shape does not place
-    (none: nobody trusted)."""
+    (none: nobody trusted). ``covering``: the rival check's seeds (`rival_seeds`) instead of
+    `shape`'s (every triple, or the cap's sample)."""
     T, n, _ = reported.shape
     use = shape_ranges(ranges, noise.range_sigma, k)
     shape = range_shape(ranges, use, noise.range_sigma)

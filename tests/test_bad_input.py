@@ -153,6 +153,11 @@ def test_a_compare_param_every_detector_must_take(cwd):
         args = ["compare", "--detectors", dets, "--param", "registration_rivals=false", "--out", "o"]
         line = fails_cleanly(args, "--param", cwd)
         assert "paper.registration_rivals: unknown parameter" in line
+    # a parameter the --config file gives is the file's fault, not --param's
+    (cwd / "cfg.toml").write_text('detector = "paper"\n[detector_params]\ntau = 0.3\n')
+    args = ["compare", "--config", "cfg.toml", "--detectors", "paper,joint", "--param", "link_rounds=2"]
+    line = fails_cleanly([*args, "--out", "o"], "--config cfg.toml", cwd)
+    assert "joint.tau: unknown parameter" in line and "--param" not in line
 
 
 def test_workers_0_fails_before_anything_starts(cwd):

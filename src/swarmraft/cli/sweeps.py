@@ -495,8 +495,11 @@ def compare_cmd(
         check_detectors(config, dets)
     except ConfigError as exc:
         where, _, what = str(exc).partition(":")
-        if where == "detector_params" and params:  # a --param one of the detectors lacks
+        key = what.strip().split(":", 1)[0].split(".", 1)[-1]  # 'joint.tau: ...' -> 'tau'
+        if where == "detector_params" and key in key_values(params):  # a --param one lacks
             raise click.BadParameter(what.strip(), param_hint="--param") from None
+        if where == "detector_params" and config_file is not None:  # the file's
+            raise ConfigError(f"--config {config_file}: {exc}") from None
         raise
     out = out or Path("results") / f"compare-{config.preset}"
     check_out(out)

@@ -69,10 +69,13 @@ def covering_triples(n: int, m: int, cap: int, partitions: int = COVER_PARTITION
     there are at most ``cap`` (`triples`), else enough to reach every such set, where a cap
     would sample: the drones are split into g = (m - 1) // 2 groups, and a set of m drones
     has 3 in some group (2 in each of g groups is fewer than m: Turan's construction), so the
-    triples inside the groups seed every such set; ``partitions`` splits (each drone's group
-    by index, then by index times a stride coprime to n) give each set that many seeds or
-    more. At n = 65 with the default f_max, 209 triples where the cap samples 6,000 (60 ms
-    of registrations a step). Read-only, and kept."""
+    triples inside the groups hold a seed of every such set; ``partitions`` splits (each
+    drone's group by index, then by index times a stride coprime to n whose square is not 1
+    mod n; none such at n = 6, 8, 12, 24) give most sets several (their triples can
+    coincide). A set that holds a seed is not always found from it (the seed may grow into
+    another set). Where the Turan triples are not fewer than the cap's sample, the sample.
+    At n = 65 with the default f_max, 209 triples where the cap samples 6,000 (60 ms of
+    registrations a step). Read-only, and kept."""
     every = triples(n, cap)
     if math.comb(n, 3) <= cap:
         return every
@@ -90,7 +93,10 @@ def rival_seeds(n: int, m: int, cap: int) -> tuple[np.ndarray, np.ndarray]:
     other one: `covering_triples`, and of those, where they are every triple, the ones of
     `turan_triples` (every set of m drones still holds one, or all where that is empty). A
     flat formation's honest set holds most triples, each tried mirrored in vain: at n = 17
-    two SVDs each, 2.6 ms of a 6.6 ms audit re-run. Read-only, and kept."""
+    two SVDs each, 2.6 ms of a 6.6 ms audit re-run. This search is not the whole one: a set
+    the Turan seeds do not grow into, whose other seeds lie inside a set of the other
+    handedness, is lost (a review's synthetic collusion at n = 9-13: 9 of 380 sets; the
+    README's collusion table moved by 2 of 24,000 trials). Read-only, and kept."""
     tri = covering_triples(n, m, cap)
     inside = np.ones(len(tri), dtype=np.bool_)
     if math.comb(n, 3) <= cap:

@@ -11,6 +11,7 @@ from swarmraft.estimation import Snapshot, SnapshotBatch, verify, verify_batch
 from swarmraft.estimation.registrations import (
     covering_triples,
     procrustes_fit,
+    registration_sets,
     rival_seeds,
     shape_ranges,
     triples,
@@ -355,6 +356,38 @@ def test_the_rival_seeds_mirror_inside_a_found_set_only_the_turan_triples():
         assert {tuple(t) for t in tri[inside].tolist()} == {tuple(t) for t in turan.tolist()}
     tri, inside = rival_seeds(65, 33, 6000)
     assert inside.all() and np.array_equal(tri, covering_triples(65, 33, 6000))
+
+
+def test_the_rival_search_finds_a_mirrored_set_inside_the_honest_one():
+    """Five of nine honest drones in one plane: reflected through it they fit their reports
+    as well (a second registration, inside the honest one, of the other handedness). The
+    rival check's search, which tries seeds mirrored inside a found set only where they are
+    Turan triples, finds it as the full search does (without those seeds, or with the other
+    seeds instead, it is lost)."""
+    rng = np.random.default_rng(3)
+    x = np.zeros((9, 3))
+    x[:5, :2] = rng.uniform(0, 100, (5, 2))  # drones 0-4 in the plane z = 0
+    x[5:] = rng.uniform(0, 100, (4, 3)) + [0, 0, 20]  # 5-8 above it
+    args = (
+        x[None],
+        x[None],
+        np.ones((1, 9), bool),
+        np.ones((1, 9, 9), bool),
+        np.eye(3),
+        16.0,
+        6000,
+        5,
+        32,
+        5,
+    )
+
+    def found(covering):
+        sets, hands, _ = registration_sets(*args, covering)
+        return {(tuple(np.flatnonzero(m).tolist()), float(h)) for m, h in zip(sets[0], hands[0], strict=True)}
+
+    rival = found(True)
+    assert ((0, 1, 2, 3, 4), -1.0) in rival and ((0, 1, 2, 3, 4, 5, 6, 7, 8), 1.0) in rival
+    assert rival == found(False)
 
 
 def test_covering_triples_are_every_triple_below_the_cap():

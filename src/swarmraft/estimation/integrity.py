@@ -594,7 +594,10 @@ def finish(
     reg = None
     if p.registration_rivals:
         f_max = resolve_f_max(p, trusted.shape[1], "integrity")
-        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa, covering=True)
+        # a non-alarm verdict's own set is never its rival: not solved (the alarms' sets are,
+        # for `_explained_alarms`)
+        own = (trusted, final != "alarm")
+        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa, covering=True, known=own)
         explained = _explained_alarms(reg, final)
         if explained is not None:
             rows, sets, flags, decided = explained

@@ -467,13 +467,16 @@ def candidates(
     refits: int = REFITS,
     max_sets: int = MAX_SETS,
     covering: bool = False,
+    known: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Candidates:
     """The candidate sets of the trials (reported (T, n, 3), ranges (T, n, n)): the distinct
     inlier sets of the rigid registrations leaving at most ``f_max`` drones out, largest
     first, each solved and tested at ``p_fa`` (module docstring; `shape` for the rule). A
     trial without a registration has one candidate, the drones the shape does not place
     (none: nobody trusted). ``covering``: the rival check's seeds (`rival_seeds`) instead of
-    `shape`'s (every triple, or the cap's sample)."""
+    `shape`'s (every triple, or the cap's sample). ``known``, optional: sets (T, n) and the
+    trials (T,) where a candidate equal to its trial's set is not solved (x and chi-square
+    nan, not passed): the rival check's verdict's own set, never its rival."""
     T, n, _ = reported.shape
     use = shape_ranges(ranges, noise.range_sigma, k)
     shape = range_shape(ranges, use, noise.range_sigma)
@@ -503,15 +506,20 @@ def candidates(
     owner = np.array([t for t, cs in enumerate(cands) for _ in cs], dtype=int)
     masks = np.concatenate(cands) if owner.size else np.zeros((0, n), dtype=bool)
     all_hands = np.concatenate(hands) if owner.size else np.zeros(0)
-    passed, total = np.zeros(owner.size, dtype=bool), np.zeros(owner.size)
-    x = np.zeros((owner.size, n, 3))
-    if owner.size:
+    passed, total = np.zeros(owner.size, dtype=bool), np.full(owner.size, np.nan)
+    x = np.full((owner.size, n, 3), np.nan)
+    solve = np.ones(owner.size, dtype=bool)
+    if known is not None and owner.size:
+        sets_known, where = known
+        solve = ~where[owner] | (masks != sets_known[owner]).any(axis=1)
+    if solve.any():
         # each candidate's joint estimate starts from its registration: with few trusted
         # drones (n near 2f+1) closed-form multilateration from them can start in a mirror
-        x0 = registered(shape[owner], reported[owner], masks, all_hands, placed[owner])
-        x = joint_estimate(
-            reported[owner], ranges[owner], masks, noise.gnss_cov, noise.range_sigma, iters=20, x0=x0
+        o, ms = owner[solve], masks[solve]
+        x0 = registered(shape[o], reported[o], ms, all_hands[solve], placed[o])
+        x[solve] = joint_estimate(
+            reported[o], ranges[o], ms, noise.gnss_cov, noise.range_sigma, iters=20, x0=x0
         )
-        _, gnss_q, total, dof = residual_statistics(x, reported[owner], ranges[owner], masks, noise)
-        passed = tests_pass(gnss_q, total, dof, masks, p_fa)
+        _, gnss_q, total[solve], dof = residual_statistics(x[solve], reported[o], ranges[o], ms, noise)
+        passed[solve] = tests_pass(gnss_q, total[solve], dof, ms, p_fa)
     return Candidates(owner, masks, all_hands, x, total, passed, capped, Winv, threshold)

@@ -18,7 +18,7 @@ from swarmraft.estimation.registrations import (
     turan_triples,
 )
 from swarmraft.experiments import build_config
-from swarmraft.experiments.trials import draw, snapshot_batch
+from swarmraft.experiments.trials import draw, integrity_metrics, snapshot_batch
 from swarmraft.world.geometry import true_distances
 
 
@@ -290,13 +290,9 @@ def test_registration_rivals_need_more_than_a_refit_of_fewer_reports():
 
 
 def misleading(v, d):
-    """Trials (T,) with a drone of an `ok` status farther from the truth than max(20 m, its
-    level), horizontally or vertically: misleading information."""
-    e = v.positions - d.truth
-    far = (np.hypot(e[..., 0], e[..., 1]) > np.maximum(20.0, v.hpl)) | (
-        np.abs(e[..., 2]) > np.maximum(20.0, v.vpl)
-    )
-    return ((v.drone_status == "ok") & far).any(axis=1)
+    """Trials (T,) whose `ok` verdict places a drone beyond max(20 m, its level), horizontally
+    or vertically: misleading information, as the sweeps count it."""
+    return integrity_metrics(d, v)["ok_over_20m_hv"] > 0
 
 
 @pytest.mark.parametrize(("n", "f", "k"), [(9, 4, 1), (9, 4, 2), (11, 5, 3)])

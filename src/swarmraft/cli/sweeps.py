@@ -414,6 +414,12 @@ def report_compare(table: dict, out: Path, title: str, to=None) -> list[Path]:
     return written
 
 
+def _every_detector(exc: Exception) -> str:
+    """A parameter error's text for `compare`, which gives every detector the parameters: the
+    registry's hint is for choosing one detector."""
+    return str(exc).replace(": choose one of them as the detector)", ": compare only detectors that take it)")
+
+
 @main.command("compare")
 @click.option("--preset", type=PRESET, default="realistic", show_default=True)
 @click.option(
@@ -479,13 +485,18 @@ def compare_cmd(
     honest drones, efficiency against the Cramér-Rao bound, detection, false-positive and
     identification rates. A --param is given to every detector compared (each must take it).
     """
-    from swarmraft.estimation import detector_names
+    from swarmraft.estimation import detector_names, detector_params
     from swarmraft.experiments.compare import check_detectors, check_out, listed, run_compare
     from swarmraft.experiments.config import ConfigError
 
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
     from swarmraft.experiments.config import attack_names
 
+    for det in dets:  # every detector compared takes every --param
+        try:
+            detector_params(det, **key_values(params))
+        except ValueError as exc:
+            raise click.BadParameter(_every_detector(exc), param_hint="--param") from None
     given = {"detector": dets[0], "detector_params": key_values(params)} if params else {}
     config = sweep_config(preset, config_file, n_text, f_text, diagonal, trials, seed, given)
     if config_file is not None and not typed("attacks"):
@@ -493,14 +504,10 @@ def compare_cmd(
     atks = name_list(attacks, "--attacks", attack_names(), "attack")
     try:
         check_detectors(config, dets)
-    except ConfigError as exc:
-        where, _, what = str(exc).partition(":")
-        key = what.strip().split(":", 1)[0].split(".", 1)[-1]  # 'joint.tau: ...' -> 'tau'
-        if where == "detector_params" and key in key_values(params):  # a --param one lacks
-            raise click.BadParameter(what.strip(), param_hint="--param") from None
-        if where == "detector_params" and config_file is not None:  # the file's
-            raise ConfigError(f"--config {config_file}: {exc}") from None
-        raise
+    except ConfigError as exc:  # what is left is the file's (a detector_params one lacks)
+        if config_file is None:
+            raise
+        raise ConfigError(f"--config {config_file}: {_every_detector(exc)}") from None
     out = out or Path("results") / f"compare-{config.preset}"
     check_out(out)
     before = listed(out)

@@ -290,13 +290,10 @@ class JointParams(IntegrityParams):
     )
     registration_rivals: bool = Field(
         True,
-        description="the rival check also tries the inlier sets of the rigid registrations of the "
-        "range-fixed shape to the reports (the shape detector's candidates): a verdict with such a "
-        "rival, leaving at most f_max drones out, passing its tests and placing some drone beyond "
-        "the verdict's levels, is unidentifiable (colluders moved rigidly about honest pivots); on "
-        "by default for joint: without it, under colluders at n = 2f+1, 4-91 % of joint's verdicts "
-        "were ok with a drone beyond max(20 m, its level) (with it 0-0.6 %, 5.4 % about 3 pivots "
-        "at n = 7; benchmarks/bench_collusion.py); false: off",
+        description=IntegrityParams.model_fields["registration_rivals"].description
+        + "; on by default for joint: without it, under colluders at n = 2f+1, 4-91 % of joint's "
+        "verdicts were ok with a drone beyond max(20 m, its level) (with it 0-0.6 %, 5.4 % about "
+        "3 pivots at n = 7; benchmarks/bench_collusion.py); false: off",
         json_schema_extra=DETECTION,
     )
 

@@ -594,10 +594,9 @@ def finish(
     reg = None
     if p.registration_rivals:
         f_max = resolve_f_max(p, trusted.shape[1], "integrity")
-        # a non-alarm verdict's own set is never its rival: not solved (the alarms' sets are,
-        # for `_explained_alarms`)
-        own = (trusted, final != "alarm")
-        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa, covering=True, known=own)
+        # (an alarm's candidates are all solved, for `_explained_alarms`)
+        verdict = (trusted, final != "alarm")
+        reg = candidates(prob.reported, prob.ranges, prob.noise, f_max, p.p_fa, verdict=verdict)
         explained = _explained_alarms(reg, final)
         if explained is not None:
             rows, sets, flags, decided = explained

@@ -466,17 +466,16 @@ def candidates(
     max_triples: int = MAX_TRIPLES,
     refits: int = REFITS,
     max_sets: int = MAX_SETS,
-    covering: bool = False,
-    known: tuple[np.ndarray, np.ndarray] | None = None,
+    verdict: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Candidates:
     """The candidate sets of the trials (reported (T, n, 3), ranges (T, n, n)): the distinct
     inlier sets of the rigid registrations leaving at most ``f_max`` drones out, largest
     first, each solved and tested at ``p_fa`` (module docstring; `shape` for the rule). A
     trial without a registration has one candidate, the drones the shape does not place
-    (none: nobody trusted). ``covering``: the rival check's seeds (`rival_seeds`) instead of
-    `shape`'s (every triple, or the cap's sample). ``known``, optional: sets (T, n) and the
-    trials (T,) where a candidate equal to its trial's set is not solved (x and chi-square
-    nan, not passed): the rival check's verdict's own set, never its rival."""
+    (none: nobody trusted). ``verdict``: the rival check's call, with each trial's trusted set
+    (T, n) and whether its verdict is not an alarm (T,): the seeds are `rival_seeds` instead
+    of `shape`'s (every triple, or the cap's sample), and a candidate equal to a non-alarm
+    verdict's own set, never its rival, is not solved (x and chi-square nan, not passed)."""
     T, n, _ = reported.shape
     use = shape_ranges(ranges, noise.range_sigma, k)
     shape = range_shape(ranges, use, noise.range_sigma)
@@ -489,7 +488,17 @@ def candidates(
     adj = consistency_graph(reported, ranges, noise, k)
     adj[:, np.arange(n), np.arange(n)] = True
     found, handed, capped = registration_sets(
-        shape, reported, placed, adj, cov, threshold, max_triples, refits, max_sets, n - f_max, covering
+        shape,
+        reported,
+        placed,
+        adj,
+        cov,
+        threshold,
+        max_triples,
+        refits,
+        max_sets,
+        n - f_max,
+        verdict is not None,
     )
     cands, hands = [], []
     for t, (sets, hs) in enumerate(zip(found, handed, strict=True)):
@@ -509,9 +518,9 @@ def candidates(
     passed, total = np.zeros(owner.size, dtype=bool), np.full(owner.size, np.nan)
     x = np.full((owner.size, n, 3), np.nan)
     solve = np.ones(owner.size, dtype=bool)
-    if known is not None and owner.size:
-        sets_known, where = known
-        solve = ~where[owner] | (masks != sets_known[owner]).any(axis=1)
+    if verdict is not None and owner.size:
+        own, settled = verdict
+        solve = ~settled[owner] | (masks != own[owner]).any(axis=1)
     if solve.any():
         # each candidate's joint estimate starts from its registration: with few trusted
         # drones (n near 2f+1) closed-form multilateration from them can start in a mirror

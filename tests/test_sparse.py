@@ -232,3 +232,64 @@ def test_candidate_sets_are_those_of_the_graph_networkx_builds_from_the_matrix()
             [c for c in want if n - len(c) <= f_max],
             cap is not None and len(found) > cap,
         ), k
+
+
+def _random_range_graph(rng: np.random.Generator, n: int, ties: bool) -> np.ndarray:
+    """Symmetric two-way ranges (n, n) of a flattish swarm, nan beyond a random range (some
+    graphs split into components); rounded to whole metres where ``ties`` (equal paths)."""
+    p = rng.uniform(3, 60, (n, 3)) * [1.0, 1.0, 0.3]
+    d = np.linalg.norm(p[:, None] - p[None], axis=2) + rng.normal(0, 0.1, (n, n))
+    d = (d + d.T) / 2
+    d[d > rng.uniform(5, 40)] = np.nan
+    if ties:
+        d = np.round(d)
+    np.fill_diagonal(d, 0.0)
+    return d
+
+
+def test_geodesic_and_components_are_scipys_bit_for_bit():
+    """`links._geodesic`'s compiled Dijkstra gives scipy's shortest paths bit for bit (equal
+    paths too: whole-metre ranges), and `_components_mds` numbers the components as scipy's
+    connected_components does (the component's offset along x depends on it)."""
+    from scipy.sparse.csgraph import connected_components, shortest_path
+
+    from swarmraft.estimation.links import _geodesic, components
+
+    rng = np.random.default_rng(11)
+    split = 0
+    for k in range(400):
+        d = _random_range_graph(rng, int(rng.integers(2, 70)), ties=k % 4 == 0)
+        g = shortest_path(np.where(np.isnan(d), 0.0, d), method="D", directed=False)
+        want = np.where(np.isnan(d), np.where(np.isfinite(g), g, np.nan), d)
+        got = _geodesic(d)
+        assert np.array_equal(got, want, equal_nan=True), k
+        m, label = connected_components(np.isfinite(want) & ~np.eye(len(d), dtype=bool), directed=False)
+        assert np.array_equal(components(got), label), k
+        split += m > 1
+    assert split > 50  # the graphs split into components often enough to test the numbering
+
+
+def test_the_screenings_shape_is_reused_only_for_equal_inputs():
+    """`links.fitted_shape` keeps its last answer for the same inputs, bit for bit: the
+    answer then is the one computed afresh, a copy the caller may change, and an input that
+    differs in one bit is fitted again."""
+    from swarmraft.estimation import links
+
+    rng = np.random.default_rng(5)
+    d = _random_range_graph(rng, 20, ties=False)[None]
+    w = (~np.isnan(d) & ~np.eye(20, dtype=bool)).astype(float)
+    sparse = sparse_graph(d)
+    links._last_shape = None
+    fresh = links.fitted_shape(d, w, 0.1, sparse)
+    kept = links.fitted_shape(d, w, 0.1, sparse)
+    assert np.array_equal(fresh, kept) and kept is not fresh
+    kept += 1.0  # the caller's copy
+    assert np.array_equal(links.fitted_shape(d, w, 0.1, sparse), fresh)
+    other = d.copy()
+    i, j = np.argwhere(~np.isnan(d[0]) & (d[0] > 0))[0]
+    other[0, i, j] = np.nextafter(other[0, i, j], np.inf)
+    links._last_shape = None
+    want = links.fitted_shape(other, w, 0.1, sparse)
+    links.fitted_shape(d, w, 0.1, sparse)  # the last answer now d's
+    assert np.array_equal(links.fitted_shape(other, w, 0.1, sparse), want)
+    assert not np.array_equal(want, fresh)

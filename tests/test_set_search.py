@@ -248,6 +248,46 @@ def test_a_set_ruled_out_without_estimating_it_never_explains_the_data():
     assert ruled > 0.5 * total
 
 
+@pytest.mark.parametrize("along_line", [True, False])
+def test_cannot_pass_never_rules_out_a_pair_a_passing_estimate_allows(along_line):
+    """`cannot_pass`'s band, on two drones whose reports z = x + e carry GNSS errors on the
+    edge of what the local test allows (e^T C^-1 e = L) and whose range is off by just under
+    what the global test allows: never ruled out, for a diagonal and a correlated GNSS
+    covariance; and the band along the line of sight rules out pairs the wider one keeps
+    (what makes the rival check's swaps cheap), never one the wider one lets through."""
+    from swarmraft.estimation.joint import cannot_pass, chi2_quantile
+
+    rng = np.random.default_rng(4)
+    p_fa, sigma = 1e-3, 0.1
+    L = chi2_quantile(1 - p_fa / 2, 3)
+    s = sigma * math.sqrt(chi2_quantile(1 - p_fa, 1))  # one range, 2 drones: 1 dof
+    sets, owner = np.ones((1, 2), dtype=bool), np.zeros(1, int)
+    A = rng.normal(size=(3, 3))
+    tighter = 0
+    for cov in (np.diag([1.5**2, 1.5**2, 3.0**2]), A @ A.T + np.eye(3)):
+        W = np.linalg.cholesky(cov)
+        for _ in range(1500):
+            x = rng.uniform(-40, 40, (2, 3)) * [1.0, 1.0, rng.choice([0.05, 1.0])]
+            u = rng.normal(size=(2, 3))
+            e = math.sqrt(L) * (u / np.linalg.norm(u, axis=1, keepdims=True)) @ W.T  # on the edge
+            z = (x + e)[None]
+            d = np.linalg.norm(x[0] - x[1]) + rng.choice([-1, 1]) * 0.999 * s
+            ranges = np.full((1, 2, 2), np.nan)
+            ranges[0, 0, 1] = d
+            assert not cannot_pass(z, ranges, sets, owner, cov, sigma, p_fa, along_line)[0]
+            # the same reports, the range moved to where no estimate fits it
+            for far in (d + 3 * np.linalg.norm(z[0, 0] - z[0, 1]) + 100, max(d - 200, 0.0)):
+                ranges[0, 0, 1] = far
+                wide = cannot_pass(z, ranges, sets, owner, cov, sigma, p_fa, along_line=False)[0]
+                line = cannot_pass(z, ranges, sets, owner, cov, sigma, p_fa)[0]
+                assert line or not wide
+                tighter += line and not wide
+            ranges[0, 0, 1] = np.linalg.norm(z[0, 0] - z[0, 1]) - 20.0  # reports 20 m further apart
+            wide = cannot_pass(z, ranges, sets, owner, cov, sigma, p_fa, along_line=False)[0]
+            tighter += cannot_pass(z, ranges, sets, owner, cov, sigma, p_fa)[0] and not wide
+    assert tighter > 1000, tighter
+
+
 def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monkeypatch):
     """A `degenerate` verdict accusing k drones is replaced only by an answer leaving out
     fewer, so the search estimates no set leaving out k or more. Flat layer (13, 6), trials 0
@@ -279,7 +319,8 @@ def test_a_degenerate_verdict_is_searched_only_over_sets_leaving_out_fewer(monke
         noise = NoiseModel.of(batch, p, "test")
         owner = np.zeros(len(sets), int)
         sigma = noise.range_sigma
-        live = ~cannot_pass(batch.reported, batch.ranges, sets, owner, noise.gnss_cov, sigma, p.p_fa)
+        args = (batch.reported, batch.ranges, sets, owner, noise.gnss_cov, sigma, p.p_fa)
+        live = ~cannot_pass(*args, along_line=False)  # the search's band
         fewer = sets[live & ((~sets).sum(axis=1) < accused)]
         got = np.concatenate(estimated) if estimated else np.zeros((0, 13), bool)
         assert sorted(map(bytes, got)) == sorted(map(bytes, fewer))

@@ -908,6 +908,10 @@ def tests_pass(
     return local_ok & global_ok
 
 
+#: rounding in `cannot_pass`'s own arithmetic never rules out a set: its band is widened by this
+_BAND_ROUNDING = 1e-9
+
+
 def cannot_pass(
     reported: np.ndarray,
     ranges: np.ndarray,
@@ -916,20 +920,33 @@ def cannot_pass(
     gnss_cov: np.ndarray,
     range_sigma: float,
     p_fa: float,
+    along_line: bool = True,
 ) -> np.ndarray:
     """Trusted sets (B, n) of the trials ``owner`` (B,) of ``reported`` (T, n, 3) and
     ``ranges`` (T, n, n) whose residual tests (`tests_pass`) fail whatever the estimate (B,).
-    Two trusted drones i, j with a range d_ij that i measured: the local test bounds each
-    one's GNSS residual by r = sqrt(L / lambda_min) (L its 3-dof quantile at p_fa / n,
-    lambda_min the GNSS information's smallest eigenvalue) and the global test bounds the
-    range residual by range_sigma sqrt(G) (G its quantile at p_fa with the set's degrees of
-    freedom), so |(|z_i - z_j|) - d_ij| <= 2 r + range_sigma sqrt(G) for their reports z in any
-    passing estimate. A set with a pair beyond it fails; a set with no degrees of freedom (the
-    global test then passes) is never ruled out here. Exact: a set ruled out is one no
-    solver could make pass, so it need not be solved."""
+
+    Two trusted drones i, j with a range d_ij that i measured: in a passing estimate x the
+    local test holds each one's GNSS error e = z - x inside the ellipsoid e^T C^-1 e <= L (C
+    the GNSS covariance, L its 3-dof quantile at p_fa / n), so w = e_i - e_j lies in the
+    ellipsoid of radius R = 2 sqrt(L), and the global test bounds the range residual by
+    s = range_sigma sqrt(G) (G its quantile at p_fa with the set's degrees of freedom). With
+    z = z_i - z_j and u = z / |z|, |x_i - x_j| = |z - w| lies between |z| - R sqrt(u^T C u)
+    (w's reach along the line of sight) and sqrt(|z|^2 + 2 |z| R sqrt(u^T C u) + R^2
+    lambda_max(C)); a set with a pair whose range d_ij is beyond that band by more than s
+    fails. Without ``along_line`` the band is the wider |z| -+ R sqrt(lambda_max(C)) (its
+    rule before 2026-12-05), where a horizontal link with a vertical GNSS error twice the
+    horizontal has twice the slack it needs: at n = 17 in `bench_audit.py` the band along the
+    line rules out every swap of the rival check, the wider one half of them; at n = 65 in
+    `bench_sparse.py` 1,075 of 1,282 against 893. (`set_search` keeps the wider band: its
+    budget counts the sets it estimates, and with fewer to estimate some searches that stop
+    at the budget today would finish, changing their verdicts.) A set with no degrees of
+    freedom (the global test then passes) is never ruled out here. Exact either way: a set
+    ruled out is one no solver could make pass, so it need not be solved."""
     n = reported.shape[1]
-    lam = smallest_information(gnss_cov)
-    reach = 2.0 * np.sqrt(chi2_quantile(1 - p_fa / n, 3) / lam)
+    C = np.ascontiguousarray(gnss_cov, float)
+    lam = smallest_information(gnss_cov)  # 1 / lambda_max(C)
+    # R, or (without along_line) the band's half-width R sqrt(lambda_max(C)), as before
+    reach = 2.0 * np.sqrt(chi2_quantile(1 - p_fa / n, 3) / (1.0 if along_line else lam))
     measured = ~np.isnan(ranges) & ~np.eye(n, dtype=bool)
     own = (measured.sum(axis=2)[owner] * sets).sum(axis=1)
     dof = 3 * sets.sum(axis=1) + own - 3 * n
@@ -937,34 +954,40 @@ def cannot_pass(
     # few sets (the rival check's swaps) each their own: the same values, without np.unique
     if len(sets) > 64:
         dofs, which = np.unique(np.maximum(dof, 1), return_inverse=True)
-        limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
+        slack = range_sigma * np.sqrt(chi2_quantile(1 - p_fa, dofs))[which]
     else:
-        limit = reach + range_sigma * np.sqrt(chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
-    limit = limit * (1 + 1e-9)  # rounding in the bound's own arithmetic never rules out a set
+        slack = range_sigma * np.sqrt(chi2_quantile(1 - p_fa, np.maximum(dof, 1)))
+    slack = np.ascontiguousarray(slack, float)
     beyond = np.zeros(len(sets), dtype=bool)
     _pair_beyond(
         np.ascontiguousarray(reported, float),
         np.ascontiguousarray(ranges, float),
         np.ascontiguousarray(owner, np.int64),
         np.ascontiguousarray(sets, bool),
-        limit,
+        C,
+        float(reach),
+        1.0 / lam,
+        slack if along_line else (reach + slack) * (1 + _BAND_ROUNDING),
+        along_line,
         beyond,
     )
     return beyond & (dof > 0) & np.isfinite(reported).all(axis=(1, 2))[owner]
 
 
 @njit(cache=True)
-def _pair_beyond(reported, ranges, owner, sets, limit, out):  # pragma: no cover - compiled
-    """out[b]: some two drones i, j of set b have a range d_ij of trial owner[b] whose gap
-    ||z_i - z_j| - d_ij| to their reports z is beyond limit[b] (`cannot_pass`; |z_i - z_j|
-    summed in order, as np.linalg.norm sums; an unmeasured range has no gap, an infinite one
-    an infinite gap). A loop that stops at the first such pair, where numpy built three
+def _pair_beyond(reported, ranges, owner, sets, C, reach, widest, slack, along_line, out):  # pragma: no cover
+    """out[b]: some two drones i, j of set b have a range d_ij of trial owner[b] outside the
+    band `cannot_pass` gives |x_i - x_j| from their reports z, widened by slack[b] (an
+    unmeasured range is never outside it, an infinite one always); without ``along_line``
+    outside |z| -+ slack[b] (the caller's whole half-width). |z| summed in order, as
+    np.linalg.norm sums. A loop that stops at the first such pair, where numpy built three
     (B, n, n) arrays: 3.7 ms of a search's step at n = 13, 5,812 sets."""
     n = sets.shape[1]
+    grow = 1.0 + _BAND_ROUNDING
     for b in range(sets.shape[0]):
         z = reported[owner[b]]
         r = ranges[owner[b]]
-        lim = limit[b]
+        s = slack[b]
         for i in range(n):
             if out[b]:
                 break
@@ -973,7 +996,26 @@ def _pair_beyond(reported, ranges, owner, sets, limit, out):  # pragma: no cover
             for j in range(n):
                 if j == i or not sets[b, j] or np.isnan(r[i, j]):
                     continue
-                if abs(norm_apart(z[i], z[j]) - r[i, j]) > lim:
+                m = norm_apart(z[i], z[j])
+                if not along_line:
+                    if abs(m - r[i, j]) > s:
+                        out[b] = True
+                        break
+                    continue
+                w0 = z[i, 0] - z[j, 0]
+                w1 = z[i, 1] - z[j, 1]
+                w2 = z[i, 2] - z[j, 2]
+                if m > 0.0:
+                    q = (
+                        w0 * (C[0, 0] * w0 + C[0, 1] * w1 + C[0, 2] * w2)
+                        + w1 * (C[1, 0] * w0 + C[1, 1] * w1 + C[1, 2] * w2)
+                        + w2 * (C[2, 0] * w0 + C[2, 1] * w1 + C[2, 2] * w2)
+                    )
+                    along = reach * np.sqrt(max(q, 0.0)) / m  # R sqrt(u^T C u)
+                else:
+                    along = reach * np.sqrt(widest)
+                far = np.sqrt(m * m + 2.0 * m * along + reach * reach * widest)
+                if m - r[i, j] > (along + s) * grow or r[i, j] - s > far * grow:
                     out[b] = True
                     break
 

@@ -166,7 +166,11 @@ def _search(
         nonlocal spent
         block = np.arange(edges[k], edges[k + 1])
         owner, sigma = np.zeros(block.size, dtype=int), noise.range_sigma
-        rows = block[~cannot_pass(reported, ranges, sets[block], owner, noise.gnss_cov, sigma, p.p_fa)]
+        # the wider band (`joint.cannot_pass`): ``budget`` counts the sets estimated, and the
+        # verdicts of searches that reach it stay those measured with it
+        args = (reported, ranges, sets[block], owner, noise.gnss_cov, sigma, p.p_fa)
+        ruled = cannot_pass(*args, along_line=False)
+        rows = block[~ruled]
         spent += rows.size
         if budget is not None and spent > budget:
             return False

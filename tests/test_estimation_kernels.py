@@ -651,3 +651,57 @@ def test_swap_sets_are_the_numpy_construction() -> None:
         _swap_sets(trusted, rows, full, swaps, worst.astype(np.int64), got_owner, got)
         np.testing.assert_array_equal(got_owner, owner)
         np.testing.assert_array_equal(got, want)
+
+
+def _numpy_consistency_graph(reported, ranges, noise, k, tol):  # noqa: ANN001, ANN202
+    """`pairwise.consistency_graph` as numpy computed it before its kernel (2026-12-05)."""
+    T, n, _ = reported.shape
+    diff = reported[:, :, None, :] - reported[:, None, :, :]
+    dhat = np.sqrt(np.einsum("tijk,tijk->tij", diff, diff))
+    u = diff / np.where(dhat > 0, dhat, 1.0)[..., None]
+    fwd, back = ranges, np.swapaxes(ranges, 1, 2)
+    both = ~np.isnan(fwd) & ~np.isnan(back)
+    cnt = (~np.isnan(fwd)).astype(float) + (~np.isnan(back))
+    with np.errstate(over="ignore"):
+        dbar = np.where(cnt > 0, (np.nan_to_num(fwd) + np.nan_to_num(back)) / np.maximum(cnt, 1), np.nan)
+    s_d2 = noise.range_sigma**2
+    var = 2 * noise.los_variance(u) + s_d2 / np.maximum(cnt, 1)
+    with np.errstate(invalid="ignore"):
+        ok = np.abs(dhat - dbar) <= np.maximum(k * np.sqrt(var), tol)
+        agree = np.abs(fwd - back) <= np.maximum(k * np.sqrt(2 * s_d2), tol)
+    ok = np.where(cnt > 0, ok & np.where(both, agree, True), True)
+    ok[:, np.arange(n), np.arange(n)] = False
+    return ok
+
+
+def test_consistency_graph_kernel_is_the_numpy_expression() -> None:
+    """The compiled pairwise consistency graph is the numpy expression's, pair for pair:
+    diagonal and correlated GNSS covariances, missing and infinite ranges, coincident and
+    missing (nan) reports, with and without ``tol``."""
+    from swarmraft.estimation.noise import NoiseModel
+    from swarmraft.estimation.pairwise import consistency_graph
+
+    rng = np.random.default_rng(1)
+    pairs = 0
+    for trial in range(400):
+        n, T = int(rng.integers(2, 20)), int(rng.integers(1, 4))
+        x = rng.uniform(-30, 30, (T, n, 3))
+        rep = x + rng.normal(0, [1.5, 1.5, 3.0], (T, n, 3))
+        rep[:, :2] += rng.normal(0, 10, (T, 2, 3))  # two spoofed
+        if trial % 7 == 0:
+            rep[:, 1] = rep[:, 0]
+        if trial % 11 == 0:
+            rep[:, -1] = np.nan
+        d = np.linalg.norm(x[:, :, None] - x[:, None], axis=3) + rng.normal(0, 0.1, (T, n, n))
+        d[rng.random((T, n, n)) < 0.3] = np.nan
+        if trial % 13 == 0:
+            d[rng.random((T, n, n)) < 0.05] = np.inf
+        a = rng.normal(size=(3, 3))
+        cov = np.diag([2.25, 2.25, 9.0]) if trial % 2 else a @ a.T + 0.1 * np.eye(3)
+        noise = NoiseModel(cov, float(rng.choice([0.05, 0.1, 1.0])))
+        k, tol = float(rng.choice([3.0, 5.0])), float(rng.choice([0.0, 0.5]))
+        np.testing.assert_array_equal(
+            consistency_graph(rep, d, noise, k, tol), _numpy_consistency_graph(rep, d, noise, k, tol)
+        )
+        pairs += T * n * n
+    assert pairs > 50_000

@@ -293,3 +293,36 @@ def test_the_screenings_shape_is_reused_only_for_equal_inputs():
     links.fitted_shape(d, w, 0.1, sparse)  # the last answer now d's
     assert np.array_equal(links.fitted_shape(other, w, 0.1, sparse), want)
     assert not np.array_equal(want, fresh)
+
+
+def test_settled_starts_put_each_untrusted_drone_in_a_minimum_of_its_own_cost():
+    """`robust.settled` on the benchmark's sparse snapshots, the attackers untrusted and their
+    start reflected across their anchors' plane (`robust.mirrored`, the start that crawled):
+    every untrusted drone that 3 or more trusted drones range ends where its own cost
+    (`robust._own_cost`) is no higher than at the start and its gradient vanishes (a
+    minimum); the trusted drones, the drones with fewer anchors and a dense trial's drones
+    stay bit for bit."""
+    from swarmraft.estimation.robust import _own_cost, mirrored, settled
+
+    d = _sparse_draw(65, 16, 6, seed=7)
+    trusted = ~d.attackers
+    x0 = mirrored(d.reported, d.ranges, trusted)
+    dense = d.truth[:1, :10]  # ten drones all ranging each other
+    rng_dense = np.linalg.norm(dense[:, :, None] - dense[:, None], axis=3)
+    assert settled(dense, rng_dense, trusted[:1, :10], np.zeros(1, bool), 0.1) is dense
+    sparse = sparse_graph(d.ranges)
+    assert sparse.all()
+    x = settled(x0, d.ranges, trusted, sparse, 0.1)
+    before = _own_cost(x0, x0[None], d.ranges, trusted, 0.1, None, None)[0]
+    after = _own_cost(x0, x[None], d.ranges, trusted, 0.1, None, None)[0]
+    anchors = ((~np.isnan(d.ranges)) & trusted[:, :, None]).sum(axis=1)  # trusted drones ranging j
+    moved = ~trusted & (anchors >= 3)
+    np.testing.assert_array_equal(x[~moved], x0[~moved])
+    assert (after[moved] <= before[moved]).all()
+    assert (after[moved] < before[moved] - 1.0).sum() > 10  # the reflection was off for many
+    for t, j in zip(*np.nonzero(moved), strict=True):
+        k = np.flatnonzero(trusted[t] & ~np.isnan(d.ranges[t, :, j]))
+        diff = x[t, j] - x[t, k]
+        dist = np.linalg.norm(diff, axis=1)
+        grad = 2 * ((dist - d.ranges[t, k, j]) / 0.1**2) @ (diff / dist[:, None])
+        assert np.linalg.norm(grad) < 1e-2 * max(1.0, after[t, j]), (t, j)

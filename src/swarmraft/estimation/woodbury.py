@@ -38,9 +38,15 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
     Z = np.zeros((3 + Kmax, N))
     sw = np.zeros(Kmax)
     P0b = np.zeros(N)
+    bq = np.zeros(N, dtype=np.int64)
     for t in range(T):
         K = K_t[t]
         m = 3 + K
+        finite = True  # P0 without inf or nan: its zero products add nothing to a sum
+        for r in range(N):
+            for q in range(N):
+                if not np.isfinite(P0[t, r, q]):
+                    finite = False
         for j in range(n):
             g = gnss[t, j]
             o = 3 * j
@@ -111,10 +117,18 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
                         for q in range(m):
                             v += X[3 * i + a, q] * Z[q, 3 * i + c]
                         Cj[t, j, i, a, c] = v
-            # step: P0 b_j + X (Z b_j)
+            # step: P0 b_j + X (Z b_j); b_j is zero but on drone j and the drones it ranges
+            # (a sparse range graph: 3 (K + 1) of 3n coordinates), and with P0 finite a zero
+            # term adds nothing to the sum, so only the others are summed, in the same order
+            nz = 0
+            for q in range(N):
+                if b[t, j, q] != 0.0 or not finite:
+                    bq[nz] = q
+                    nz += 1
             for r in range(N):
                 v = 0.0
-                for q in range(N):
+                for e in range(nz):
+                    q = bq[e]
                     v += P0[t, r, q] * b[t, j, q]
                 P0b[r] = v
             for q in range(m):

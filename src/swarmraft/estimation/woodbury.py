@@ -14,8 +14,8 @@ matrix. Only the 3x3 diagonal blocks of P_j and the step P_j b_j are kept.
 version it replaced built every hypothesis' X at once (tens of MB at n = 64) and its many
 small array operations were most of the protection levels' time at n = 17 (1.0 ms of a
 5 ms step). A zero column (a range not measured) adds an identity row to S_j and nothing
-to P_j, so each trial takes its own K (the most ranges one of its drones measured) and a
-verdict's bits do not depend on the other trials of its batch.
+to P_j, so each hypothesis takes its own K (the ranges its drone measured) and a verdict's
+bits do not depend on the other trials of its batch.
 """
 
 from __future__ import annotations
@@ -40,8 +40,6 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
     P0b = np.zeros(N)
     bq = np.zeros(N, dtype=np.int64)
     for t in range(T):
-        K = K_t[t]
-        m = 3 + K
         finite = True  # P0 without inf or nan: its zero products add nothing to a sum
         for r in range(N):
             for q in range(N):
@@ -60,6 +58,13 @@ def _kernel(P0, b, gnss, Gh, u, w, nb, K_t, Cj, dj):  # pragma: no cover - compi
                 for r in range(N):
                     dj[t, j, r] = 0.0
                 continue
+            # the ranges j measured (first in nb): the trial's other columns would be zero,
+            # each an identity row of S_j that adds nothing (the same values with fewer of
+            # them: at n = 65 a drone ranges 7-21 others, and every hypothesis took 21)
+            K = 0
+            while K < K_t[t] and w[t, j, nb[t, j, K]] > 0:
+                K += 1
+            m = 3 + K
             # X = P0 U_j: GNSS columns P0[:, j] Gh g, range columns sqrt(w) (P0[:, j] - P0[:, k]) u
             for c in range(K):
                 sw[c] = np.sqrt(w[t, j, nb[t, j, c]])

@@ -189,7 +189,17 @@ def robust_estimate(
             # plane at once: when no start reached either side cleanly, the other side of the
             # plane is among no start's minima, and two equally good minima apart would pass
             # for one
-            Xf, cf, okf = solve(mirrored(x[rows], ranges[rows], trusted[rows]), rows)
+            flipped = mirrored(x[rows], ranges[rows], trusted[rows])
+            flipped = settled(
+                flipped,
+                ranges[rows],
+                trusted[rows],
+                sparse[rows],
+                noise.range_sigma,
+                None if pr is None else pr[rows],
+                prior_sigma,
+            )
+            Xf, cf, okf = solve(flipped, rows)
             appended(rows, Xf, cf, okf)
             won = okf & (cf < c[rows])
             x[rows[won]], c[rows[won]], ok[rows[won]] = Xf[won], cf[won], True

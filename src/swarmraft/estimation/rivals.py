@@ -138,19 +138,22 @@ def rival_sets(
     sets = np.concatenate([sets, sets[again], d_sets])
     rep, rng_ = reported[owner], ranges[owner]
     pr = None if prior is None or not prior_sigma else prior[owner]
+    # a rival no estimate could pass is not solved (most swaps of a spoofed drone tens of
+    # metres off): it stays at the reports, fails, and costs inf; the others are as if all
+    # were solved (a solve does not depend on the others in its batch)
+    live = ~cannot_pass(reported, ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p_fa)
+    x0 = rep.copy()
     # from closed-form multilateration (trusted drones at their reports), not from x: a rival
     # is a rotation of tens of metres away, beyond a few local steps from the chosen estimate
-    untrusted_prior = None if pr is None else np.where(sets[..., None], np.nan, pr)
-    x0 = initial_positions(rep, rng_, sets, untrusted_prior, fast=True)
+    swap = live & (np.arange(owner.size) < B)
+    untrusted_prior = None if pr is None else np.where(sets[swap][..., None], np.nan, pr[swap])
+    x0[swap] = initial_positions(rep[swap], rng_[swap], sets[swap], untrusted_prior, fast=True)
     # or the chosen estimate's other side: with one anchor fewer (or another) the rest may be
     # near-coplanar, and the drones they locate fit as well reflected across their plane
     # (n = 9, f = 4: a spoofed drone trusted, its report near the mirror of its true position
     # across the honest drones' plane, placed 3 flagged drones 28-98 m off, every test passing)
-    x0[B:] = mirrored(x[owner[B:]], rng_[B:], sets[B:])
-    # a rival no estimate could pass is not solved (most swaps of a spoofed drone tens of
-    # metres off): it keeps its start, fails, and costs inf; the others are as if all were
-    # solved (a solve does not depend on the others in its batch)
-    live = ~cannot_pass(reported, ranges, sets, owner, noise.gnss_cov, noise.range_sigma, p_fa)
+    second = live & (np.arange(owner.size) >= B)
+    x0[second] = mirrored(x[owner[second]], rng_[second], sets[second])
     xs = x0.copy()
     total = np.full(owner.size, np.inf)
     passed = np.zeros(owner.size, dtype=bool)

@@ -188,3 +188,46 @@ def test_singular_information_is_decided_by_the_condition_number_as_the_svd_deci
     ]
     # without the singular members the batch inverts at once and decides by the norms
     assert np.array_equal(_safe_inv(J[:7]), expected[:7])
+
+
+def _numpy_range_information(truth, measured, range_sigma, symmetric, J):  # noqa: ANN001, ANN202
+    """The ranges' part of `swarm_information` as numpy computed it before its kernel."""
+    T, n, _ = truth.shape
+    idx = np.arange(n)
+    d = truth[:, :, None, :] - truth[:, None, :, :]
+    norm = np.linalg.norm(d, axis=-1, keepdims=True)
+    u = d / np.where(norm > 0, norm, 1.0)
+    m = np.asarray(measured, bool) & ~np.eye(n, dtype=bool)
+    mt = np.swapaxes(m, 1, 2)
+    cnt = ((m | mt).astype(float) if symmetric else m.astype(float) + mt.astype(float)) / range_sigma**2
+    uu = np.einsum("tij,tijk,tijl->tijkl", cnt, u, u)
+    J -= uu.transpose(0, 1, 3, 2, 4) * 1.0
+    J[:, idx, :, idx, :] += uu.sum(axis=2).transpose(1, 0, 2, 3)
+    return J.reshape(T, 3 * n, 3 * n)
+
+
+def test_swarm_information_kernel_is_the_numpy_expression():
+    """`swarm_information`'s range terms, compiled, are the numpy expression's bit for bit
+    (signs of zeros too): coincident drones, a drone at nan, one or two measurements per
+    pair, with and without the GNSS, common-error and INS parts before them."""
+    from swarmraft.estimation.bounds import swarm_information
+
+    rng = np.random.default_rng(3)
+    for trial in range(120):
+        T, n = int(rng.integers(1, 4)), int(rng.integers(1, 25))
+        x = rng.uniform(-50, 50, (T, n, 3))
+        if trial % 5 == 0 and n > 1:
+            x[:, 1] = x[:, 0]
+        if trial % 7 == 0:
+            x[:, -1] = np.nan
+        tr = rng.random((T, n)) < 0.7
+        meas = rng.random((T, n, n)) < 0.6
+        cov = np.diag([2.25, 2.25, 9.0])
+        sym = bool(trial % 2)
+        kw = {"common_cov": np.diag([1.0, 1.0, 4.0])} if trial % 3 == 0 else {}
+        got = swarm_information(x, tr, meas, cov, 0.1, symmetric=sym, **kw)
+        # the numpy reference on the same GNSS/common part: the kernel's input is that part
+        base = swarm_information(x, tr, np.zeros_like(meas), cov, 0.1, symmetric=sym, **kw)
+        want = _numpy_range_information(x, meas, 0.1, sym, base.reshape(T, n, 3, n, 3).copy())
+        np.testing.assert_array_equal(got, want)
+        assert np.array_equal(np.signbit(got), np.signbit(want))

@@ -242,7 +242,7 @@ def _random_range_graph(rng: np.random.Generator, n: int, ties: bool) -> np.ndar
     d = (d + d.T) / 2
     d[d > rng.uniform(5, 40)] = np.nan
     if ties:
-        d = np.round(d)
+        d = np.maximum(np.round(d), 1.0)  # equal paths (no zero-length link: see below)
     np.fill_diagonal(d, 0.0)
     return d
 
@@ -269,7 +269,36 @@ def test_geodesic_and_components_are_scipys_bit_for_bit():
     assert split > 50  # the graphs split into components often enough to test the numbering
 
 
-def test_the_screenings_shape_is_reused_only_for_equal_inputs():
+def test_a_zero_length_link_joins_its_drones_in_the_shortest_paths():
+    """A measured range of 0 (two drones at one place; scipy's dense input drops any link of
+    1e-8 m or less) is a link: the pairs it joins get finite paths, the components are those
+    of the measured links, and the screening's MDS of two clusters bridged by it runs (it
+    failed on the gap before, `LinAlgError`)."""
+    from scipy.sparse.csgraph import connected_components
+
+    from swarmraft.estimation.links import _geodesic, components
+
+    rng = np.random.default_rng(2)
+    for k in range(100):
+        d = _random_range_graph(rng, int(rng.integers(4, 30)), ties=False)
+        i, j = rng.choice(len(d), 2, replace=False)
+        d[i, j] = d[j, i] = 0.0  # the two drones at one place
+        g = _geodesic(d)
+        linked = ~np.isnan(d) & ~np.eye(len(d), dtype=bool)
+        m, label = connected_components(linked, directed=False)
+        assert np.array_equal(components(g), label), k
+        assert np.array_equal(np.isfinite(g), label[:, None] == label[None, :]), k
+    # two clusters 200 m apart, a zero range across them (a corrupt or co-located pair)
+    p = np.concatenate([rng.uniform(0, 40, (8, 3)), rng.uniform(0, 40, (8, 3)) + [200.0, 0.0, 0.0]])
+    rng_ = np.linalg.norm(p[:, None] - p[None], axis=2)
+    rng_[rng_ > 60] = np.nan
+    rng_[0, 8] = rng_[8, 0] = 0.0
+    np.fill_diagonal(rng_, 0.0)
+    out = screen(rng_[None], 0.1)
+    assert out.ranges.shape == (1, 16, 16)
+
+
+def test_the_screenings_shape_is_reused_only_for_equal_inputs(monkeypatch):
     """`links.fitted_shape` keeps its last answer for the same inputs, bit for bit: the
     answer then is the one computed afresh, a copy the caller may change, and an input that
     differs in one bit is fitted again."""
@@ -279,9 +308,13 @@ def test_the_screenings_shape_is_reused_only_for_equal_inputs():
     d = _random_range_graph(rng, 20, ties=False)[None]
     w = (~np.isnan(d) & ~np.eye(20, dtype=bool)).astype(float)
     sparse = sparse_graph(d)
+    fits = []
+    real = links._fit
+    monkeypatch.setattr(links, "_fit", lambda *a: fits.append(1) or real(*a))
     links._last_shape = None
     fresh = links.fitted_shape(d, w, 0.1, sparse)
     kept = links.fitted_shape(d, w, 0.1, sparse)
+    assert len(fits) == 1  # the second answer was the kept one
     assert np.array_equal(fresh, kept) and kept is not fresh
     kept += 1.0  # the caller's copy
     assert np.array_equal(links.fitted_shape(d, w, 0.1, sparse), fresh)
@@ -291,7 +324,9 @@ def test_the_screenings_shape_is_reused_only_for_equal_inputs():
     links._last_shape = None
     want = links.fitted_shape(other, w, 0.1, sparse)
     links.fitted_shape(d, w, 0.1, sparse)  # the last answer now d's
+    fits.clear()
     assert np.array_equal(links.fitted_shape(other, w, 0.1, sparse), want)
+    assert len(fits) == 1  # fitted again: one bit apart is another input
     assert not np.array_equal(want, fresh)
 
 
@@ -326,3 +361,25 @@ def test_settled_starts_put_each_untrusted_drone_in_a_minimum_of_its_own_cost():
         dist = np.linalg.norm(diff, axis=1)
         grad = 2 * ((dist - d.ranges[t, k, j]) / 0.1**2) @ (diff / dist[:, None])
         assert np.linalg.norm(grad) < 1e-2 * max(1.0, after[t, j]), (t, j)
+
+
+def test_a_drone_settled_from_nan_stays_there():
+    """`robust.settled` leaves a drone whose own cost at the start is not finite (its start or
+    an anchor at nan) where it is, with or without a prior, instead of raising."""
+    from swarmraft.estimation.robust import settled
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-30, 30, (1, 6, 3))
+    ranges = np.full((1, 6, 6), np.nan)
+    ranges[0, 1:5, 0] = 10.0
+    trusted = np.ones((1, 6), bool)
+    trusted[0, 0] = False
+    prior = np.full((1, 6, 3), np.nan)
+    prior[0, 0] = 1.0
+    for bad in (0, 1):  # the drone itself, one of its anchors
+        for pr, ps in ((None, None), (prior, 1.0)):
+            start = x.copy()
+            start[0, bad] = np.nan
+            out = settled(start, ranges, trusted, np.ones(1, bool), 0.1, pr, ps)
+            np.testing.assert_array_equal(out, start)
+    assert np.isfinite(settled(x, ranges, trusted, np.ones(1, bool), 0.1, prior, 1.0)).all()

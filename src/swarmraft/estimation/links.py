@@ -124,8 +124,11 @@ def _geodesic(d: np.ndarray) -> np.ndarray:
     """d (n, n) with each unmeasured pair (nan) filled by its shortest path through measured
     ones (nan where none): on a sparse range graph, a complete matrix for classical MDS whose
     error (paths bend round) the fit then removes. Dijkstra from every drone, compiled
-    (`_dijkstra`): scipy's `shortest_path` gave the same bits at 3-4x the cost (its checks and
-    its conversion to a sparse matrix were most of a 65-drone step's 0.9 ms)."""
+    (`_dijkstra`): scipy's `shortest_path` gives the same bits at 3-4x the cost (its checks and
+    its conversion to a sparse matrix were most of a 65-drone step's 0.9 ms), except for a
+    measured range of 1e-8 m or less, which scipy's dense input drops as no link: here it is a
+    link, so a pair is finite exactly when measured links join it (scipy left such a pair
+    finite but unjoined, and the MDS of its component failed on the gap)."""
     g = np.empty_like(d, dtype=float)
     _dijkstra(np.ascontiguousarray(d, float), g)
     return np.where(np.isnan(d), np.where(np.isfinite(g), g, np.nan), d)
@@ -134,7 +137,8 @@ def _geodesic(d: np.ndarray) -> np.ndarray:
 @njit(cache=True)
 def _dijkstra(d, out):  # pragma: no cover - compiled
     """Shortest path lengths (n, n) into ``out`` (inf where none) over the links of d (n, n,
-    symmetric; nan or 0: no link), Dijkstra from each drone with a binary heap. A length is
+    symmetric; nan: no link, a zero length is a link), Dijkstra from each drone with a binary
+    heap. A length is
     the sum along its path from the source, each relaxation dist[u] + d[u, v] kept only if
     strictly shorter: the bits do not depend on the order in which equally distant drones
     are taken (scipy's `shortest_path(method="D")` agrees bit for bit)."""
@@ -143,14 +147,14 @@ def _dijkstra(d, out):  # pragma: no cover - compiled
     for i in range(n):
         c = 0
         for j in range(n):
-            if j != i and d[i, j] == d[i, j] and d[i, j] != 0.0:
+            if j != i and d[i, j] == d[i, j]:
                 c += 1
         start[i + 1] = start[i] + c
     nbr = np.empty(start[n], dtype=np.int64)
     for i in range(n):
         c = start[i]
         for j in range(n):
-            if j != i and d[i, j] == d[i, j] and d[i, j] != 0.0:
+            if j != i and d[i, j] == d[i, j]:
                 nbr[c] = j
                 c += 1
     m = start[n] + n + 1
@@ -222,18 +226,24 @@ def _components_mds(g: np.ndarray) -> np.ndarray:
 
 
 def components(g: np.ndarray) -> np.ndarray:
-    """Each drone's connected component (n,) from shortest-path distances g (n, n; nan or inf
-    between components): what a drone reaches is its component, numbered in the order of
-    their first drones (as scipy's connected_components numbers them)."""
+    """Each drone's connected component (n,) of the graph whose edges are the finite entries
+    of g (n, n), numbered in the order of their first drones (as scipy's connected_components
+    numbers them). From `_geodesic` (a finite entry for every pair measured links join) a
+    drone's component is the row's finite entries; searched breadth first all the same."""
     n = len(g)
+    linked = np.isfinite(g) | np.isfinite(g.T)
     label = np.full(n, -1)
     k = 0
     for i in range(n):
-        if label[i] < 0:
-            member = np.isfinite(g[i])
-            member[i] = True
-            label[member] = k
-            k += 1
+        if label[i] >= 0:
+            continue
+        label[i] = k
+        front = [i]
+        while front:
+            reach = linked[front].any(axis=0) & (label < 0)
+            label[reach] = k
+            front = list(np.flatnonzero(reach))
+        k += 1
     return label
 
 

@@ -46,8 +46,9 @@ def _consistency_kernel(reported, ranges, C, s_d2, k, tol, out):  # pragma: no c
     the reports against the mean of the ranges measured between them (consistent where none
     is), within k sigma with sigma^2 = 2 u^T C u + s_d2 / (ranges measured) along the unit
     vector u between the reports; and the two ranges, where both are measured, within k
-    sqrt(2 s_d2) of each other; never below ``tol``. The numpy expression it replaced gave
-    the same graph on 206,360 random pairs (diagonal and correlated C, missing ranges)."""
+    sqrt(2 s_d2) of each other; never below ``tol``. The numpy expression it replaced gives
+    the same graph, ranges on the edge of the test included (the distance summed in einsum's
+    order, (d0^2 + d2^2) + d1^2: summed in index order, 3,613 edge ranges decided otherwise)."""
     T, n, _ = reported.shape
     agree_lim = max(k * np.sqrt(2 * s_d2), tol)
     for t in range(T):
@@ -70,7 +71,7 @@ def _consistency_kernel(reported, ranges, C, s_d2, k, tol, out):  # pragma: no c
                 d0 = z[i, 0] - z[j, 0]
                 d1 = z[i, 1] - z[j, 1]
                 d2 = z[i, 2] - z[j, 2]
-                dh = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                dh = np.sqrt((d0 * d0 + d2 * d2) + d1 * d1)  # as einsum sums three squares
                 den = dh if dh > 0 else 1.0
                 u0 = d0 / den
                 u1 = d1 / den

@@ -481,7 +481,8 @@ def settled(
     at the minimum of their own part of the cost (`_own_cost`: the ranges trusted drones
     measured to the drone, its prior where it has one) with the trusted drones where x0 has
     them; a drone that fewer than 3 trusted drones range and without a prior stays (as does
-    one with an infinite range). The other trials are x0 itself.
+    one with an infinite range, or whose own cost at the start is not finite: a start or an
+    anchor at nan). The other trials are x0 itself.
 
     Given the trusted drones, each untrusted drone's position changes only its own part of
     the cost, so these are 3-dof problems solved one drone at a time. Solved jointly from a
@@ -556,6 +557,8 @@ def _settle_kernel(x, ranges, trusted, sparse, w_r, prior, prior_w, iters):  # p
             for a in range(3):
                 p[a] = x[t, i, a]
             cost = _drone_cost(x, ranges, trusted, t, i, p, w_r, prior, w_p)
+            if not np.isfinite(cost):  # a start or an anchor at nan: left as it is
+                continue
             lam = 1e-6
             for _ in range(iters):
                 H[:, :] = 0.0

@@ -418,3 +418,29 @@ def test_calibrate_on_a_preset_that_does_not_calibrate_says_so_before_its_table(
         "preset reference does not calibrate (calibrate = false): its sweeps use the paper "
         "detector's tau 0.01 m" in first
     )
+
+
+def test_a_numerical_failure_is_an_internal_error_not_bad_input():
+    """A LinAlgError from inside a command (a ValueError to Python) is reported as an internal
+    error with exit status 1, not as bad input (status 2), so a user reports it instead of
+    changing their input; a ValueError of the input keeps status 2."""
+    from swarmraft.cli import app
+
+    @app.main.command("boom-linalg")
+    def boom_linalg() -> None:
+        raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+    @app.main.command("boom-input")
+    def boom_input() -> None:
+        raise ValueError("n: must be at least 3")
+
+    try:
+        r = CliRunner().invoke(app.main, ["boom-linalg"])
+        assert r.exit_code == 1
+        assert "internal error" in r.output and "Eigenvalues did not converge" in r.output
+        r = CliRunner().invoke(app.main, ["boom-input"])
+        assert r.exit_code == 2 and "error: n: must be at least 3" in r.output
+        assert "internal" not in r.output
+    finally:
+        app.main.commands.pop("boom-linalg", None)
+        app.main.commands.pop("boom-input", None)

@@ -1,6 +1,7 @@
 """The `swarmraft` command group and what its commands share: consoles, one-line errors,
-exit statuses (2 for bad input, 130 on Ctrl-C), progress bars and printing a table with its
-legend. Shared options are in `swarmraft.cli.options`, the tables in `swarmraft.cli.tables`."""
+exit statuses (2 for bad input, 1 for a numerical failure inside the estimators, 130 on
+Ctrl-C), progress bars and printing a table with its legend. Shared options are in
+`swarmraft.cli.options`, the tables in `swarmraft.cli.tables`."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 import click
+import numpy as np
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import (
@@ -82,7 +84,18 @@ class _Group(click.Group):
             if isinstance(exc, click.ClickException | click.exceptions.Exit):
                 raise
             text = str(exc).strip()
-            _fail(text.splitlines()[0] if text else type(exc).__name__)
+            first = text.splitlines()[0] if text else type(exc).__name__
+            if isinstance(exc, np.linalg.LinAlgError):
+                # a numerical failure inside the estimators, not the user's input (a ValueError
+                # to Python): said so, with exit status 1, so it is reported rather than "fixed"
+                err_console.print(
+                    f"[bold red]internal error:[/] {escape(first)} (a numerical failure, not bad "
+                    "input: please report the command and its input files)",
+                    soft_wrap=True,
+                    markup=True,
+                )
+                sys.exit(1)
+            _fail(first)
 
 
 def progress_bar(

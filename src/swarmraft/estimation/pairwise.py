@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from swarmraft.estimation.joint import pair_distance
 from swarmraft.estimation.noise import NoiseModel
 
 
@@ -68,14 +69,11 @@ def _consistency_kernel(reported, ranges, C, s_d2, k, tol, out):  # pragma: no c
                     continue
                 cnt = (1.0 if mf else 0.0) + (1.0 if mb else 0.0)
                 dbar = ((f if mf else 0.0) + (b if mb else 0.0)) / cnt
-                d0 = z[i, 0] - z[j, 0]
-                d1 = z[i, 1] - z[j, 1]
-                d2 = z[i, 2] - z[j, 2]
-                dh = np.sqrt((d0 * d0 + d2 * d2) + d1 * d1)  # as einsum sums three squares
+                dh = pair_distance(z, i, j)  # summed as einsum sums three squares
                 den = dh if dh > 0 else 1.0
-                u0 = d0 / den
-                u1 = d1 / den
-                u2 = d2 / den
+                u0 = (z[i, 0] - z[j, 0]) / den
+                u1 = (z[i, 1] - z[j, 1]) / den
+                u2 = (z[i, 2] - z[j, 2]) / den
                 v = (
                     u0 * C[0, 0] * u0
                     + u0 * C[0, 1] * u1

@@ -71,7 +71,17 @@ def robust_estimate(
     # on a sparse range graph every start but the closed form first has its untrusted drones
     # settled into their own minima (`settled`); the closed form is left as it is
     sparse = linked_share(ranges) <= SPARSE_SHARE
-    x0[1:] = [settled(v, ranges, trusted, sparse, noise.range_sigma, pr, prior_sigma) for v in x0[1:]]
+
+    def settle(x0: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """`settled` on x0 (len(rows), n, 3) of the trials ``rows`` (x0 itself, nothing copied,
+        where none of them is sparse: every dense batch)."""
+        if not sparse[rows].any():
+            return x0
+        pr_rows = None if pr is None else pr[rows]
+        return settled(x0, ranges[rows], trusted[rows], sparse[rows], noise.range_sigma, pr_rows, prior_sigma)
+
+    t = np.arange(T)
+    x0[1:] = [settle(v, t) for v in x0[1:]]
     X0 = np.concatenate(x0)
     source = _first_copy(X0.reshape(S, T, 3 * n))
     rows = np.flatnonzero(source == np.arange(S * T))
@@ -111,7 +121,6 @@ def robust_estimate(
     X, cost, conv = X.reshape(S, T, n, 3), cost.reshape(S, T), conv.reshape(S, T)
     X0 = X0.reshape(S, T, n, 3)
     full = np.zeros((S, T), dtype=bool)  # which starts hold the full solver's minimum
-    t = np.arange(T)
 
     def solved_again() -> np.ndarray:
         """The best start of each trial, solved again by the full solver where it was not
@@ -128,9 +137,7 @@ def robust_estimate(
     best = solved_again()
     # one more start: the best with every untrusted drone reflected across its anchors'
     # best-fit plane, where near-coplanar anchors leave each drone a second minimum
-    flip0 = settled(
-        mirrored(X[best, t], ranges, trusted), ranges, trusted, sparse, noise.range_sigma, pr, prior_sigma
-    )
+    flip0 = settle(mirrored(X[best, t], ranges, trusted), t)
     flip = solve(flip0, t, reduced=True)
     X0 = np.concatenate([X0, flip0[None]])
     X = np.concatenate([X, flip[0][None]])
@@ -189,17 +196,7 @@ def robust_estimate(
             # plane at once: when no start reached either side cleanly, the other side of the
             # plane is among no start's minima, and two equally good minima apart would pass
             # for one
-            flipped = mirrored(x[rows], ranges[rows], trusted[rows])
-            flipped = settled(
-                flipped,
-                ranges[rows],
-                trusted[rows],
-                sparse[rows],
-                noise.range_sigma,
-                None if pr is None else pr[rows],
-                prior_sigma,
-            )
-            Xf, cf, okf = solve(flipped, rows)
+            Xf, cf, okf = solve(settle(mirrored(x[rows], ranges[rows], trusted[rows]), rows), rows)
             appended(rows, Xf, cf, okf)
             won = okf & (cf < c[rows])
             x[rows[won]], c[rows[won]], ok[rows[won]] = Xf[won], cf[won], True
@@ -519,7 +516,7 @@ def _drone_cost(x, ranges, trusted, t, i, p, w_r, prior, w_p):  # pragma: no cov
     for k in range(n):
         d = ranges[t, k, i]
         if k != i and trusted[t, k] and not np.isnan(d):
-            e = np.sqrt((p[0] - x[t, k, 0]) ** 2 + (p[1] - x[t, k, 1]) ** 2 + (p[2] - x[t, k, 2]) ** 2) - d
+            e = norm_apart(p, x[t, k]) - d
             c += w_r * e * e
     if w_p > 0.0:
         for a in range(3):
@@ -567,13 +564,12 @@ def _settle_kernel(x, ranges, trusted, sparse, w_r, prior, prior_w, iters):  # p
                     d = ranges[t, k, i]
                     if k == i or not trusted[t, k] or np.isnan(d):
                         continue
-                    u0 = p[0] - x[t, k, 0]
-                    u1 = p[1] - x[t, k, 1]
-                    u2 = p[2] - x[t, k, 2]
-                    r = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+                    r = norm_apart(p, x[t, k])
                     if not r > 0.0:
                         continue
-                    u0, u1, u2 = u0 / r, u1 / r, u2 / r
+                    u0 = (p[0] - x[t, k, 0]) / r
+                    u1 = (p[1] - x[t, k, 1]) / r
+                    u2 = (p[2] - x[t, k, 2]) / r
                     e = w_r * (r - d)
                     g[0] += u0 * e
                     g[1] += u1 * e

@@ -43,7 +43,14 @@ import numpy as np
 
 from swarmraft.protocol.drone import PRIOR_STEPS, Prior, memo_compute
 from swarmraft.protocol.memo import record_digest
-from swarmraft.protocol.records import Report, StepRecord, canonical_params, settled, well_formed
+from swarmraft.protocol.records import (
+    Report,
+    StepRecord,
+    canonical_params,
+    carried_positions,
+    settled,
+    well_formed,
+)
 from swarmraft.raft import Entry, EntryKind, Snapshot
 
 if TYPE_CHECKING:
@@ -346,7 +353,7 @@ class Auditor:
         for h in held:
             if (
                 settled(h)
-                and np.array_equal(h.positions, rec.prior_positions, equal_nan=True)
+                and np.array_equal(carried_positions(h), rec.prior_positions, equal_nan=True)
                 and np.array_equal(h.faulty, rec.prior_faulty)
             ):
                 return None

@@ -1,6 +1,7 @@
 """Drag-off over time: a window-limited GLRT on each drone's GNSS-minus-INS innovations and on
-the swarm-wide mean of the innovations of the drones the step's snapshot verdict trusts
-(docs/protocol.md, "The drag-off test"), and the rule for when a drone's INS track may be
+the swarm-wide mean of the innovations of the drones present and not caught by the temporal
+gate (pooled before the snapshot detector runs: docs/protocol.md, "The drag-off test"), and
+the rule for when a drone's INS track may be
 re-aligned to its committed position.
 
 Pure: a function of one step's reports and the noise model. Each report carries its drone's

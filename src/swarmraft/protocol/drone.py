@@ -32,6 +32,7 @@ from swarmraft.protocol.records import (
     Report,
     StepRecord,
     canonical_params,
+    carried_positions,
     reports_digest,
     settled,
 )
@@ -162,6 +163,7 @@ class SwarmDrone:
         self.state = Applied()
         self.inbox: dict[int, dict[int, Report]] = {}
         self.last_seen: dict[int, int] = {}  # drone -> last step it reported
+        self.gone: set[int] = set()  # drones that left the swarm and have not reported since
         self.decided: set[int] = set()  # steps this drone verified as leader, not yet applied
         self.rejected = 0
         self.refused_applies = 0  # committed records this drone's audit refused to apply
@@ -252,18 +254,32 @@ class SwarmDrone:
             return False
         self.inbox.setdefault(report.step, {})[report.drone] = report
         self.last_seen[report.drone] = max(self.last_seen.get(report.drone, -1), report.step)
+        self.gone.discard(report.drone)
         return True
 
     def forget(self, drone: int) -> None:
-        """Drone ``drone`` (index) left the swarm: `has_all` no longer waits for its reports."""
+        """Drone ``drone`` (index) left the swarm: `has_all` no longer waits for its reports
+        (until it reports again)."""
         self.last_seen.pop(drone, None)
+        self.gone.add(drone)
 
     def has_all(self, step: int, recent: int = 10) -> bool:
-        """Whether every drone heard from in the last ``recent`` steps has reported for
-        ``step`` (a silent drone does not hold the step up beyond its first deadlines)."""
+        """Whether every drone known to be alive has reported for ``step``, so the leader
+        need not wait for the step's deadline: every drone heard from in the last ``recent``
+        steps and every drone that reported in the newest applied record, if that record is
+        at most ``recent`` steps old (a silent drone does not hold the step up beyond its
+        first deadlines). Without such a record the drone does not know who is alive (a new
+        leader has heard only from itself: it closed its first step on its own report, the
+        others' arriving a millisecond later), and only all n reports close the step early."""
         got = self.inbox.get(step, {})
-        expected = [d for d, k in self.last_seen.items() if k >= step - recent]
-        return len(got) == self.config.n or (bool(expected) and all(d in got for d in expected))
+        if len(got) == self.config.n:
+            return True
+        last = self.state.records.get(self.state.last_step)
+        if last is None or last.step < step - recent:
+            return False
+        expected = {d for d, k in self.last_seen.items() if k >= step - recent}
+        expected |= {int(d) for d in np.flatnonzero(~np.asarray(last.missing, bool))} - self.gone
+        return expected <= got.keys()
 
     def trusted_record(self, step: int) -> StepRecord | None:
         """The newest record at most PRIOR_STEPS before ``step`` whose verdict can be carried
@@ -291,7 +307,7 @@ class SwarmDrone:
         # whose verdict is alarm or unidentifiable is not a prior: its flags and positions are
         # what the data could not settle, and carrying them on locks the wrong partition in.
         last = self.trusted_record(step)
-        prior = None if last is None else Prior(last.step, last.positions, last.faulty)
+        prior = None if last is None else Prior(last.step, carried_positions(last), last.faulty)
         return memo_compute(self.record_memo, step, term, reports, prior, self.config)
 
     def seal(self, rec: StepRecord) -> bytes:
@@ -524,6 +540,11 @@ def compute_record(
             # saw: the others keep its positions and protection levels)
             if c.detector != "paper" and (again & ~dragged).any():
                 again = present
+            # a drone the detector did not protect (level inf: withheld under the alert limits,
+            # or its fault undetectable) stays as the detector left it: its position the prior
+            # or nan, its levels inf; re-estimated, it took the ranges' placement with levels
+            # nan, and every drone aligned its INS to it (`drift.realigns` refuses only inf)
+            again = again & ~(np.isinf(hpl) | np.isinf(vpl))
             positions[again] = est[again]
             found = ~present & (anchor_counts(ranges[None], trusted[None])[0] >= 4)
             positions[found] = est[found]

@@ -221,3 +221,16 @@ def test_a_table_interrupted_while_written_leaves_the_old_one_and_no_temporary_f
         write_rows(path, ["a"], rows())
     assert path.read_text().splitlines() == ["a", "1"]
     assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]
+
+
+@pytest.mark.parametrize("sigmas", [(0.0, 3.0), (1.5, 0.0)])
+def test_a_zero_gnss_sigma_runs_without_a_bound(tmp_path, sigmas):
+    """docs/scenarios.md: a GNSS sigma of 0 means no Cramér-Rao bound is computed. The bound's
+    inverse of the singular GNSS covariance raised instead (a review: `internal error:
+    Singular matrix` from `sweep`, any detector)."""
+    h, v = sigmas
+    cfg = build_config("realistic", n=(7,), f=(1,), trials=8, gnss={"sigma_h": h, "sigma_v": v})
+    run_sweep(cfg, tmp_path / "z", workers=1)
+    cells = read_table(tmp_path / "z" / "cells.csv")
+    assert list(cells["n"]) == [7] and cells["trials"][0] == 8
+    assert np.isnan(cells["attacked_efficiency"][0])  # no bound to be efficient against

@@ -104,11 +104,11 @@ def bound_metrics(config: SweepConfig, d: Draw, positions: np.ndarray) -> dict[s
     """Per trial and drone group (attacked, honest): mean squared error, mean trace of the
     swarm Cramér-Rao bound (faulty set known), mean NEES against it, and the share of drones
     with NEES above the chi-square 3-dof 0.999 quantile. NaN where the noise model has no
-    Gaussian bound (exact data, RSSI ranging)."""
+    Gaussian bound (exact data, RSSI ranging, a GNSS sigma of 0: a singular covariance)."""
     T = d.truth.shape[0]
     keys = [f"{g}_{m}" for g in ("attacked", "honest") for m in ("sq", "bound", "nees", "catastrophic")]
     sigma = config.ranging.sigma_for_snapshot
-    if config.gnss is None or not sigma:
+    if config.gnss is None or not sigma or not (config.gnss.sigma_h and config.gnss.sigma_v):
         return {k: np.full(T, np.nan) for k in keys}
     g = config.gnss
     common = gnss_covariance(g.common_h, g.common_v) if g.common_h or g.common_v else None

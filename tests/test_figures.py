@@ -238,6 +238,19 @@ def test_recovery_rings_failed_recoveries(drawn):
     assert "1 of 2" in ax.get_title()
 
 
+def test_recovery_counts_an_attacked_drone_not_placed_as_failed(drawn):
+    """Neither attacked drone placed (verified nan): the title said "verified nan m; failed
+    recoveries: 0 of 2" (a review); a drone not placed is a failed recovery."""
+    truth = np.array([[0, 0, 0], [50, 0, 0], [0, 50, 0], [0, 0, 50], [50, 50, 50], [25, 25, 25.0]])
+    att = np.array([1, 1, 0, 0, 0, 0], bool)
+    ver = truth.copy()
+    ver[:2] = np.nan
+    case = {"truth": truth, "reported": truth + att[:, None] * 30.0, "verified": ver, "attackers": att}
+    vf.recovery([case], "x.png")
+    title = drawn[0].axes[0].get_title()
+    assert "failed recoveries: 2 of 2 (2 not placed)" in title and "none placed" in title, title
+
+
 @pytest.fixture(scope="module")
 def reference_sweep(tmp_path_factory):
     """A small finished reference sweep (n = 6, f = 2, 10 trials)."""

@@ -252,7 +252,9 @@ def recovery(
         )
         limit = max(1.0, 3.0 * honest_rms)
         flagged = case.get("faulty", att)
-        failed = att & ((err_all > limit) | ~flagged)
+        # a drone not placed (nan) is a failed recovery too, not a silent pass
+        failed = att & (~(err_all <= limit) | ~flagged)
+        unplaced = att & np.isnan(err_all)
         for ax, plane in zip(row, planes, strict=True):
 
             def pts(a: np.ndarray, plane: tuple[int, ...] = plane) -> list[np.ndarray]:
@@ -282,7 +284,7 @@ def recovery(
                     label="failed recovery (not flagged, or error above the limit in the title)",
                 )
                 if len(plane) == 2:
-                    for i in np.flatnonzero(failed):
+                    for i in np.flatnonzero(failed & ~unplaced):
                         ax.annotate(
                             f"{err_all[i]:.3g} m" + ("" if flagged[i] else ", not flagged"),
                             ver[i, list(plane)],
@@ -301,11 +303,14 @@ def recovery(
                 ax.set_aspect("equal", adjustable="datalim")
                 ax.grid(True, ls=":", alpha=0.5)
         n, f = len(truth), int(att.sum())
-        err = np.linalg.norm(ver - truth, axis=1)[att].mean()
+        placed = att & ~unplaced
+        err = f"{err_all[placed].mean():.2g} m" if placed.any() else "none placed"
+        not_placed = f" ({int(unplaced.sum())} not placed)" if unplaced.any() else ""
         row[0].set_title(
             f"n = {n}, f = {f}: mean error of attacked drones\n"
             f"reported {np.linalg.norm(rep - truth, axis=1)[att].mean():.1f} m, "
-            f"verified {err:.2g} m; failed recoveries: {int(failed.sum())} of {f}\n(limit {limit:.3g} m: "
+            f"verified {err}; failed recoveries: {int(failed.sum())} of {f}{not_placed}\n"
+            f"(limit {limit:.3g} m: "
             "3x the honest reports' rms error, at least 1 m)",
             fontsize=10,
         )

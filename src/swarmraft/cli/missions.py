@@ -139,6 +139,11 @@ def print_mission_summary(summary: dict) -> None:
             else "misleading information (error above its level, status ok): none"
             if mis is not None
             else "misleading information: not judged (no ok record has a protection level)"
+        )
+        + (
+            f"; [yellow]{unlevelled} drone-steps of ok records have no protection level: not judged[/]"
+            if (unlevelled := ig.get("ok_drone_steps_without_level")) and mis is not None
+            else ""
         ),
         2,
     )

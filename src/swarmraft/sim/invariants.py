@@ -27,12 +27,12 @@ INVARIANTS = (
     "leader-commit-rule",  # a leader moves its commit index only onto an entry of its own term
     "durable-term-vote",  # a persisted term never goes back; one persisted vote per term
     "durable-before-send",  # a granted vote, an acknowledged entry: on disk before the answer leaves
-    "state-machine-safety",  # no two nodes apply different entries at one index
     "read-linearizable",  # a ReadIndex answer covers every commit made before the read began
     "transfer-caught-up",  # MsgTimeoutNow goes only to a node holding the leader's whole log
     "conf-change-rule",  # a leader appends a configuration change only with the previous one
     # committed and an entry of its own term committed (single-server changes, thesis 4.1)
-    "state-machine-safety",  # every node applies the same entry at each index, each index once, in order
+    "state-machine-safety",  # every node applies the same entry at each index (no two nodes apply
+    # different entries at one index), each index once, in order
     "snapshot-committed",  # a snapshot or a compacted log covers only committed entries, with their terms
 )
 

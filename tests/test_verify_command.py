@@ -111,7 +111,17 @@ def test_bad_snapshot_files_are_one_line(tmp_path, monkeypatch):
     fails_cleanly(
         ["verify", "s.csv", "--gnss-sigma", "1.5", "--range-sigma", "0.1"], "--gnss-sigma", tmp_path
     )
-    fails_cleanly(["verify", "s.csv", "--range-sigma", "0.1", "--detector", "nope"], "nope", tmp_path)
+    fails_cleanly(
+        ["verify", "s.csv", "--range-sigma", "0.1", "--detector", "nope"],
+        "--detector: unknown name 'nope'",
+        tmp_path,
+    )
+    # the option that gave a bad parameter is named, as `sweep` names it (a new-user review)
+    fails_cleanly(
+        ["verify", "s.csv", "--range-sigma", "0.1", "--param", "nope=1"],
+        "--param: joint.nope: unknown",
+        tmp_path,
+    )
 
 
 def test_a_bad_gnss_sigma_is_refused_even_where_the_file_gives_its_own(tmp_path, monkeypatch):

@@ -61,6 +61,13 @@ def verify_command(
 
     snap = read_snapshot(snapshot, gnss_sigma=_pair(gnss_sigma, "--gnss-sigma"), range_sigma=range_sigma)
     extra = key_values(params)
+    try:  # the detector and its parameters, named by the option that gave them
+        detector_params(detector, **extra)
+    except ValueError as exc:
+        msg = str(exc)
+        if msg.startswith("detector: "):
+            raise click.BadParameter(msg.removeprefix("detector: "), param_hint="--detector") from None
+        raise click.BadParameter(msg, param_hint="--param") from None
     if detector != "paper" and snap.range_sigma is None and "range_sigma" not in extra:
         raise click.BadParameter(
             f"{snapshot} gives no noise model and {detector} needs one: "

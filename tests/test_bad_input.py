@@ -341,6 +341,8 @@ def test_detector_parameters_checked_before_the_sweep_starts(cwd, param, needle)
     [
         # a negative offset failed after the ROC's seconds of work, naming the attack's field
         (["curves", "--n", "9", "--f", "2", "--trials", "10", "--offsets", "2,-5"], "--offsets: offsets are"),
+        # a detector without a threshold failed after an empty progress bar (a new-user review)
+        (["curves", "--detectors", "shape", "--n", "7", "--f", "2"], "--detectors: no threshold parameter"),
         # the same detector twice ran the same trials twice and tabled them twice
         (["compare", "--detectors", "paper,joint,paper", "--n", "9", "--f", "2"], "--detectors: paper given"),
         (

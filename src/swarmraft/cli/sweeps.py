@@ -569,7 +569,12 @@ def calibrate(preset, n_text, trials, seed) -> None:
 
 @main.command()
 @click.option("--preset", type=PRESET, default="realistic", show_default=True)
-@click.option("--detectors", default="paper,clique,fde,joint", show_default=True)
+@click.option(
+    "--detectors",
+    default="paper,clique,fde,joint",
+    show_default=True,
+    help="detectors with a threshold to move (paper, clique, fde, joint; not shape)",
+)
 @click.option("--n", "n", type=click.IntRange(min=4), default=13, show_default=True, help="swarm size")
 @click.option("--f", "f", type=click.IntRange(min=1), default=3, show_default=True, help="attackers")
 @click.option(
@@ -614,6 +619,12 @@ def curves(preset, detectors, n, f, trials, false_alarm, offsets, roc_offset, at
     from swarmraft.estimation import detector_names
 
     dets = name_list(detectors, "--detectors", list(detector_names()), "detector")
+    if no_threshold := [d for d in dets if d not in THRESHOLDS]:  # before the progress bar
+        raise click.BadParameter(
+            f"no threshold parameter known for {', '.join(no_threshold)}; curves draws "
+            f"{', '.join(THRESHOLDS)}",
+            param_hint="--detectors",
+        )
     try:
         offs = [float(v) for v in offsets.split(",")]
     except ValueError:

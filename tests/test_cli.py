@@ -444,3 +444,15 @@ def test_a_numerical_failure_is_an_internal_error_not_bad_input():
     finally:
         app.main.commands.pop("boom-linalg", None)
         app.main.commands.pop("boom-input", None)
+
+
+def test_a_size_that_makes_no_cell_is_named_not_dropped_in_silence(tmp_path):
+    """`sweep --n 5,9 --f 3` ran (9, 3) only and said nothing of n = 5 (3 attackers need 7
+    drones; a new-user review)."""
+    args = ["sweep", "--n", "5,9", "--f", "3", "--trials", "2", "--workers", "1"]
+    args += ["--out", str(tmp_path / "s")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "note: no cell at n = 5 with the attacker counts given: left out" in r.output
+    r = CliRunner().invoke(main, [*args[:2], "9", *args[3:-1], str(tmp_path / "t")])
+    assert "note:" not in r.output

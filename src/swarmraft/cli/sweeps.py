@@ -128,6 +128,7 @@ def sweep(
     check_executor(workers, scheduler)
     check_resume(out, config)
     cells = config.cells()
+    note_sizes_without_cells(config)
     console.print(
         f"sweep: preset {config.preset}, detector {config.detector}"
         f"{' given the true honest set' if config.known_set else ''}, attack "
@@ -149,6 +150,19 @@ def sweep(
         console.print("nothing to run: every cell was already finished")
     for p in result.paths:
         console.print(f"  wrote {p}", soft_wrap=True)
+
+
+def note_sizes_without_cells(config) -> None:  # noqa: ANN001 (a SweepConfig)
+    """A note (stderr) for each swarm size given that makes no cell: no attacker count given
+    fits it (f <= (n-1)//2, and the attack's honest drones), so the run leaves it out."""
+    have = {n for n, _ in config.cells()}
+    if missing := sorted(set(config.n) - have):
+        what = (
+            "on the diagonal (n = 2f+1 needs n odd)" if config.diagonal else "with the attacker counts given"
+        )
+        err_console.print(
+            f"note: no cell at n = {', '.join(map(str, missing))} {what}: left out", soft_wrap=True
+        )
 
 
 def calibration_line(out: Path) -> str | None:
@@ -512,6 +526,7 @@ def compare_cmd(
     check_out(out)
     before = listed(out)
     say = err_console if as_json else console
+    note_sizes_without_cells(config)
     say.print(
         f"compare: {', '.join(dets)} on {', '.join(atks)}, preset {config.preset}, "
         f"{len(config.cells())} cells x {config.trials} trials -> {out}",

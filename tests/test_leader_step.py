@@ -171,3 +171,27 @@ def test_a_withheld_drones_position_is_never_carried_more_than_one_step():
         # a position one step old is off by its estimate's error and 0.7 m; nan: not placed
         assert not (err > 5.0).any(), (k, np.round(err, 1))
     assert withheld >= 10  # the test is about withheld drones: there are some
+
+
+def test_a_drone_flagged_by_the_gate_is_never_committed_at_its_report():
+    """A new leader alone at its deadline (the others' reports went to the leader that just
+    died: a networked run, 2026-12-05) with its own report spoofed 30 m: the temporal gate
+    flags it, too few drones are trusted to place it again, and the record committed the
+    spoofed report as its position (31.5 m off, flagged, level inf). A flagged drone still at
+    its report takes its prior, or nan without one, as one the detector flagged does."""
+    from swarmraft.protocol.drone import Prior
+
+    keys = Keyring.generate(N, np.random.default_rng(0))
+    cfg = ProtocolConfig(n=N, detector="joint")
+    truth, _ = world(10)
+    r = reports(keys, cfg, 10, [2], spoof={2: np.array([30.0, 0.0, 0.0])})[2]
+    jumped = SwarmDrone(2, cfg, keys).make_report(
+        10, r.position, "gnss", r.ranges, np.array([30.0, 0.0, 0.0])
+    )
+    for prior, want in (
+        (Prior(9, truth + 0.5, np.zeros(N, bool)), truth[2] + 0.5),
+        (None, np.full(3, np.nan)),
+    ):
+        rec = compute_record(10, 1, {2: jumped}, prior, cfg)
+        assert rec.faulty[2] and not settled(rec)
+        np.testing.assert_array_equal(rec.positions[2], want)

@@ -553,6 +553,12 @@ def compute_record(
             vpl[again | found] = np.nan
             if st[0] != "ok" and status == "ok":
                 status = str(st[0])
+    # a drone flagged after the detector (gate, latch) and not placed again (too few trusted
+    # drones) is still at its report: its prior, as the detector's own flagged ones (nan
+    # without one; a networked new leader alone at its deadline committed its own spoofed
+    # report, flagged, 31.5 m off)
+    still = faulty & present & (positions == reported).all(axis=1)
+    positions[still] = prior[still]
     if drift is not None and last is not None:
         fallback = ins_fallback(reports, present, faulty, positions, last.faulty, drift)
         if fallback is not None:

@@ -62,6 +62,16 @@ def test_cells_csv_cut_mid_line(ref, command):
     fails_cleanly([*command, "ref"], "ref/cells.csv, line 3: ", ref.parent)
 
 
+def test_cells_csv_cut_inside_its_header(ref):
+    """Cut inside the header (a new-user review: `head -c 300`), the table was called one from
+    another version of swarmraft, to be run again; it is a truncated file."""
+    table = ref / "cells.csv"
+    table.write_bytes(table.read_bytes()[:300])
+    assert b"\n" not in table.read_bytes()
+    line = fails_cleanly(["check", "ref"], "ref/cells.csv: the file ends inside its header", ref.parent)
+    assert "truncated or corrupt" in line and "another version" not in line
+
+
 @pytest.mark.parametrize("command", [["check"], ["figure", "scaling"]])
 def test_cells_csv_with_a_word_for_a_number(ref, command):
     table = ref / "cells.csv"

@@ -79,6 +79,10 @@ def read_table(path: Path, required: Sequence[str] = (), text: Iterable[str] = (
         raise TableError(f"{path}: empty table")
     header, body = rows[0], rows[1:]
     missing = [c for c in required if c not in header]
+    if missing and not body and not path.read_bytes().endswith(b"\n"):
+        # every table written ends with a newline: one cut inside its header is not another
+        # version's (a new-user review: a cut header was called a folder from another version)
+        raise TableError(f"{path}: the file ends inside its header (a truncated or corrupt file)")
     if missing:
         more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
         raise TableError(

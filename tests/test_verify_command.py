@@ -165,3 +165,15 @@ def test_untrusted_drones_whose_faults_could_not_be_detected_are_named_as_withhe
     assert "withheld under the alert limits (H 70 m, V 70 m):" in text
     assert "drones 0, 1, 2, 3, 8: untrusted, their anchors' faults undetectable (level inf)" in text
     assert "protection level above the limits" not in text
+
+
+def test_a_zero_range_sigma_is_taken_from_the_flag_as_from_a_file():
+    """A JSON file may say "range_sigma": 0 (exact ranges) and --gnss-sigma 0,0 is taken;
+    --range-sigma 0 was refused (x>0; a new-user review)."""
+    r = CliRunner().invoke(
+        main,
+        ["verify", str(EXAMPLES / "snapshot.csv"), "--gnss-sigma", "0,0", "--range-sigma", "0", "--json"],
+    )
+    assert r.exit_code == 0, r.output  # a verdict, not bad input (2)
+    # exact data taken for noisy reports: no drone's geometry passes as fixed, and it says so
+    assert json.loads(r.stdout)["status"] == "degenerate"

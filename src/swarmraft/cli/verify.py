@@ -38,8 +38,8 @@ def _pair(text: str | None, option: str) -> tuple[float, float] | None:
 @click.option("--gnss-sigma", help="GNSS sigma per axis H,V in m, where the file gives none (e.g. 1.5,3)")
 @click.option(
     "--range-sigma",
-    type=click.FloatRange(min=0, min_open=True),
-    help="ranging sigma in m, where the file gives none",
+    type=click.FloatRange(min=0),
+    help="ranging sigma in m, where the file gives none (0: exact ranges, as a file may say)",
 )
 @click.option("--json", "as_json", is_flag=True, help="print the verdict as JSON on stdout")
 def verify_command(

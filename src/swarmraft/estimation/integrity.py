@@ -656,7 +656,8 @@ def _verdicts(
     second minimum far off ((9, 4), realistic, trial 15,650: 35-187 m off from 4 anchors). A
     drone with a prior keeps its estimate: the prior (the previous record's position) ties it
     to where the drone was, resolving the mirror of 3 anchors, and withheld it would become
-    that prior, carried on unchanged while the drone moves. A trusted drone keeps its
+    that prior (in a mission one step old, then nan: `protocol.records.carried_positions`).
+    A trusted drone keeps its
     estimate: its own report is in the fit (``keep_unverified``: the untrusted one too).
     Only the label: every decision (repair, rivals, the set search, which reads
     ``diagnostics["status_without_limits"]`` and sees every set's placements through

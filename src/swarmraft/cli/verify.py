@@ -62,7 +62,7 @@ def verify_command(
     snap = read_snapshot(snapshot, gnss_sigma=_pair(gnss_sigma, "--gnss-sigma"), range_sigma=range_sigma)
     extra = key_values(params)
     try:  # the detector and its parameters, named by the option that gave them
-        detector_params(detector, **extra)
+        p = detector_params(detector, **extra)
     except ValueError as exc:
         msg = str(exc)
         if msg.startswith("detector: "):
@@ -134,7 +134,6 @@ def verify_command(
         )
     console.print(table)
     if withheld.any():
-        p = detector_params(detector, **extra)
         limits = ", ".join(
             f"{axis} {'none' if lim is None else f'{lim:g} m'}"
             for axis, lim in (("H", p.alert_limit_h), ("V", p.alert_limit_v))

@@ -441,6 +441,14 @@ def _detect(reported: np.ndarray, ranges: np.ndarray, prior: np.ndarray, idx: np
     return verify_batch(sub, c.detector, check=False, **c.detector_params)
 
 
+def _off_report(positions: np.ndarray, flagged: np.ndarray, reported: np.ndarray, prior: np.ndarray) -> None:
+    """A flagged drone still at its report (nobody placed it) takes its prior, or nan
+    without one, in place in ``positions`` (n, 3): a flagged drone is never committed at
+    its report."""
+    still = flagged & (positions == reported).all(axis=1)
+    positions[still] = prior[still]
+
+
 def compute_record(
     step: int, term: int, reports: dict[int, Report], last: Prior | None, c: ProtocolConfig
 ) -> StepRecord:
@@ -496,8 +504,7 @@ def compute_record(
     hpl, vpl = np.full(n, np.nan), np.full(n, np.nan)
     hpl[idx], vpl[idx] = v.hpl[0], v.vpl[0]
     status = str(v.status[0])
-    stuck = faulty & present & (positions == reported).all(axis=1) & np.isfinite(prior).all(axis=1)
-    positions[stuck] = prior[stuck]
+    _off_report(positions, faulty & present, reported, prior)  # the detector could not place them
     det_faulty = faulty.copy()
     gate |= present & (drift.dragged if drift is not None else dragged)
     # Latch: drones flagged in the last record stay suspect until their reports agree with
@@ -553,12 +560,10 @@ def compute_record(
             vpl[again | found] = np.nan
             if st[0] != "ok" and status == "ok":
                 status = str(st[0])
-    # a drone flagged after the detector (gate, latch) and not placed again (too few trusted
-    # drones) is still at its report: its prior, as the detector's own flagged ones (nan
-    # without one; a networked new leader alone at its deadline committed its own spoofed
-    # report, flagged, 31.5 m off)
-    still = faulty & present & (positions == reported).all(axis=1)
-    positions[still] = prior[still]
+    # and a drone flagged after the detector (gate, latch) and not placed again (too few
+    # trusted drones): a networked new leader alone at its deadline committed its own spoofed
+    # report, flagged, 31.5 m off
+    _off_report(positions, faulty & present, reported, prior)
     if drift is not None and last is not None:
         fallback = ins_fallback(reports, present, faulty, positions, last.faulty, drift)
         if fallback is not None:
